@@ -1,0 +1,53 @@
+# Quick start: `make demo` (set up and run the main job) and `make test` (set up and run every test).
+# Both create .venv and install what they need; as root they also apt-get install
+# user-mode-linux, kmod and can-utils when missing (the vcan sandbox and the CAN peer tools).
+
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV   := .venv
+PY     := $(VENV)/bin/python
+AIDER  := $(VENV)/bin/aider-exo
+STAMP  := $(VENV)/.installed
+SYSTEM_TOOLS := linux insmod candump canplayer cangen
+
+.PHONY: demo test venv system-deps docs clean
+
+venv: $(STAMP)
+
+$(STAMP): pyproject.toml
+	@test -n "$(PYTHON)" || { echo "make: no python3 found (Python 3.11 or newer needed)"; exit 1; }
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	@touch $(STAMP)
+
+# The vcan sandbox (user-mode Linux + kmod) and can-utils (candump, canplayer, cangen).
+system-deps:
+	@missing=""; for t in $(SYSTEM_TOOLS); do command -v $$t >/dev/null 2>&1 || [ -x /usr/sbin/$$t ] || [ -x /sbin/$$t ] || missing="$$missing $$t"; done; \
+	if [ -z "$$missing" ]; then exit 0; fi; \
+	if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+		echo "installing user-mode-linux kmod can-utils (missing:$$missing)"; \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq user-mode-linux kmod can-utils >/dev/null; \
+	else \
+		echo "warning: missing$$missing; install user-mode-linux kmod can-utils (as root) or the vcan tests will be skipped"; \
+	fi
+
+# The main job, for now: the CAN protocol and a full bus check over vcan0 between two processes,
+# recorded by candump (can-utils) and decoded again. Later issues make this the walking demo.
+demo: venv system-deps
+	$(AIDER) protocol
+	@mkdir -p build
+	tools/vcan-run -- sh -c 'if [ -n "$$AIDER_VCAN_UNAVAILABLE" ]; then \
+		echo "no vcan0 here: running the bus check on the in-process virtual bus instead"; \
+		exec $(AIDER) buscheck --ticks 250; \
+	else exec $(AIDER) buscheck --config config/vcan.yaml --ticks 250 --candump build/demo-candump.log; fi'
+
+test: venv system-deps
+	$(PY) -m pytest -m "not vcan"
+	tools/vcan-run -- $(PY) -m pytest -m vcan -p no:cacheprovider
+
+# Regenerate the protocol documentation from the DBC (a test fails when it is stale).
+docs: venv
+	$(AIDER) protocol --markdown > docs/PROTOCOL.md
+
+clean:
+	rm -rf $(VENV) build .pytest_cache .hypothesis

@@ -1,0 +1,1 @@
+"""The main controller that runs on the patient's backpack computer (gait FSM, DMP, PI², tick loop)."""

@@ -1,0 +1,1 @@
+"""The AIDER CAN protocol: catalogue (from ``aider.dbc``), codec, end-to-end checks, bus access."""

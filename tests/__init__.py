@@ -1,0 +1,1 @@
+"""Test suite (not installed)."""

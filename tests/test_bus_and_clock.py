@@ -1,0 +1,92 @@
+"""Opening the configured bus; the clock abstraction and absolute-deadline tick pacing."""
+
+from __future__ import annotations
+
+import socket
+
+import can
+import pytest
+
+from config import BusConfig
+from protocol.bus import open_bus, socketcan_problem
+from protocol.clock import ManualClock, TickTimer
+from protocol.errors import BusUnavailableError
+
+
+def test_virtual_bus_opens_and_carries_frames():
+    cfg = BusConfig(interface="virtual", channel="t-bus", bitrate_bit_s=500_000)
+    with open_bus(cfg) as a, open_bus(cfg) as b:
+        a.send(can.Message(arbitration_id=0x80, data=b"\x01", is_extended_id=False))
+        msg = b.recv(timeout=1)
+        assert msg is not None and msg.arbitration_id == 0x80
+
+
+def test_missing_socketcan_gives_one_line_with_fixes(monkeypatch):
+    monkeypatch.setattr("protocol.bus.socketcan_problem", lambda channel: "this kernel has no SocketCAN")
+    cfg = BusConfig(interface="socketcan", channel="vcan0", bitrate_bit_s=500_000)
+    with pytest.raises(BusUnavailableError) as info:
+        open_bus(cfg)
+    text = str(info.value)
+    assert "\n" not in text
+    for fix in ("modprobe vcan", "tools/vcan-run", "bus.interface: virtual"):
+        assert fix in text
+
+
+def test_socketcan_problem_names_the_cause(tmp_path, monkeypatch):
+    class FakeSocket:
+        def __init__(self, *args):
+            pass
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(socket, "AF_CAN", getattr(socket, "AF_CAN", 29), raising=False)
+    monkeypatch.setattr(socket, "socket", FakeSocket)
+    assert "no network interface 'vcan7'" in socketcan_problem("vcan7", tmp_path)
+    (tmp_path / "vcan7").mkdir()
+    (tmp_path / "vcan7" / "flags").write_text("0x80\n")
+    assert "is down" in socketcan_problem("vcan7", tmp_path)
+    (tmp_path / "vcan7" / "flags").write_text("0xc1\n")
+    assert socketcan_problem("vcan7", tmp_path) is None
+
+
+def test_this_kernel_without_af_can_is_detected():
+    try:
+        socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW).close()
+    except OSError:
+        assert "no SocketCAN" in socketcan_problem("vcan0")
+    else:
+        pytest.skip("this kernel has SocketCAN")
+
+
+def test_manual_clock():
+    clock = ManualClock(100)
+    clock.sleep_until(50)
+    assert clock.now_ns() == 100
+    clock.sleep_until(250)
+    assert clock.now_ns() == 250
+    with pytest.raises(ValueError):
+        clock.advance(-1)
+
+
+def test_tick_timer_keeps_absolute_deadlines():
+    clock = ManualClock(1_000)
+    timer = TickTimer(clock, period_ns=20)
+    ticks = []
+    for _ in range(5):
+        ticks.append(timer.wait())
+        clock.advance(7)  # work shorter than a tick
+    assert ticks == [0, 1, 2, 3, 4]
+    assert clock.now_ns() == 1_000 + 4 * 20 + 7
+    assert timer.overruns == 0
+
+
+def test_tick_timer_skips_missed_ticks_without_a_burst():
+    clock = ManualClock(0)
+    timer = TickTimer(clock, period_ns=20)
+    assert timer.wait() == 0
+    clock.advance(65)  # overran ticks 1, 2 and 3
+    assert timer.wait() == 4 and clock.now_ns() == 80
+    assert timer.overruns == 1 and timer.skipped == 3
+    clock.advance(5)
+    assert timer.wait() == 5 and clock.now_ns() == 100

@@ -1,0 +1,73 @@
+"""Project layout rules: import directions, explicit packaging, one CLI module per subcommand."""
+
+from __future__ import annotations
+
+import ast
+import tomllib
+
+import pytest
+
+from tests.conftest import ROOT
+
+CODE_FOLDERS = ["config", "controller", "nodes", "protocol", "sim", "tools"]
+
+# package -> top-level packages it must never import
+FORBIDDEN = {
+    "controller": {"sim", "nodes", "pybullet"},
+    "sim": {"controller"},
+    "protocol": {"controller", "nodes", "sim", "pybullet"},
+    "config": {"controller", "nodes", "sim", "protocol", "tools", "pybullet"},
+}
+
+
+def _imports(path):
+    tree = ast.parse(path.read_text(), filename=str(path))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield alias.name.split(".")[0]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            yield node.module.split(".")[0]
+
+
+@pytest.mark.parametrize("package", sorted(FORBIDDEN))
+def test_import_direction(package):
+    bad = []
+    for path in (ROOT / package).rglob("*.py"):
+        for name in _imports(path):
+            if name in FORBIDDEN[package]:
+                bad.append(f"{path.relative_to(ROOT)} imports {name}")
+    assert not bad
+
+
+def test_every_code_folder_is_an_explicit_package_and_tests_are_not():
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    packages = set(project["tool"]["setuptools"]["packages"])
+    for folder in CODE_FOLDERS:
+        for init in (ROOT / folder).rglob("__init__.py"):
+            name = ".".join(init.parent.relative_to(ROOT).parts)
+            assert name in packages, f"{name} is missing from pyproject's package list"
+    assert not any(p.split(".")[0] == "tests" for p in packages)
+    for folder in CODE_FOLDERS:
+        assert (ROOT / folder / "__init__.py").exists()
+
+
+def test_one_module_per_subcommand():
+    from tools.cli import SUBCOMMANDS
+
+    for name, module in SUBCOMMANDS.items():
+        assert module == f"tools.cli.{name}"
+        assert (ROOT / "tools" / "cli" / f"{name}.py").exists()
+
+
+def test_time_is_read_only_through_the_clock_module():
+    offenders = []
+    for folder in CODE_FOLDERS:
+        for path in (ROOT / folder).rglob("*.py"):
+            if path.name == "clock.py":
+                continue
+            text = path.read_text()
+            for call in ("time.time(", "time.monotonic(", "time.sleep(", "time.perf_counter("):
+                if call in text:
+                    offenders.append(f"{path.relative_to(ROOT)}: {call}")
+    assert not offenders

@@ -1,0 +1,1 @@
+"""Command-line tools of aider-exo (``aider-exo`` and its subcommands) and developer scripts."""

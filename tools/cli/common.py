@@ -1,0 +1,52 @@
+"""Options shared by subcommands: configuration file and bus overrides, JSON output."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from config import Config, default_config_path, load_config, with_overrides
+
+
+def add_config_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", metavar="FILE", help="YAML configuration (default: the packaged config/default.yaml)")
+    parser.add_argument("--bus", choices=("socketcan", "virtual"), help="override bus.interface")
+    parser.add_argument("--channel", help="override bus.channel (vcan0, can0, or a virtual bus name)")
+
+
+def load_cli_config(args: argparse.Namespace) -> Config:
+    """The configuration named by ``--config`` with ``--bus``/``--channel`` applied (validated)."""
+    cfg = load_config(args.config or default_config_path())
+    overrides: dict[str, Any] = {}
+    if args.bus:
+        overrides["bus.interface"] = args.bus
+    if args.channel:
+        overrides["bus.channel"] = args.channel
+    return with_overrides(cfg, overrides) if overrides else cfg
+
+
+def print_json(data: Any) -> None:
+    json.dump(data, sys.stdout, indent=2, sort_keys=False)
+    sys.stdout.write("\n")
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"{value} is not positive")
+    return value
+
+
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text} is not a positive finite number")
+    return value
