@@ -94,3 +94,12 @@ def test_cli_refuses_impossible_combinations(capsys):
     assert "--candump records a SocketCAN interface" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["buscheck", "--ticks", "0"])
+
+
+def test_a_bad_config_fails_before_the_bus_opens_naming_the_key(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("schema_version: 1\nbus:\n  interface: virtual\n  channel: x\n  bitrate_bit_s: 2000000\n"
+                   "protocol:\n  max_delta_counter: 2\n")
+    assert main(["buscheck", "--config", str(bad)]) == 1
+    err = capsys.readouterr().err
+    assert err == f"aider-exo: error: {bad}: bus.bitrate_bit_s: 2000000 is above the maximum 1000000\n"
