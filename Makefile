@@ -39,7 +39,7 @@ demo: venv system-deps
 	tools/vcan-run -- sh -c 'if [ -n "$$AIDER_VCAN_UNAVAILABLE" ]; then \
 		echo "no vcan0 here: running the bus check on the in-process virtual bus instead"; \
 		exec $(AIDER) buscheck --ticks 250; \
-	else exec $(AIDER) buscheck --config config/vcan.yaml --ticks 250 --candump build/demo-candump.log; fi'
+	else exec $(AIDER) buscheck --bus socketcan --channel vcan0 --ticks 250 --candump build/demo-candump.log; fi'
 
 test: venv system-deps
 	$(PY) -m pytest -m "not vcan"

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from .loader import fail, field_spec
+from .sim_schema import SimConfig
 
 __all__ = ["SCHEMA_VERSION", "BusConfig", "Config", "ProtocolConfig"]
 
@@ -132,3 +133,6 @@ class Config:
     )
     bus: BusConfig = field_spec(doc="CAN bus settings.")
     protocol: ProtocolConfig = field_spec(doc="End-to-end protection receiver settings.")
+    sim: SimConfig | None = field_spec(
+        doc="The simulated HHEA (model, physics, patient, sensors); absent on the robot.", default=None
+    )

@@ -41,8 +41,7 @@ def _parse_cantools_line(line: str) -> tuple[int, str, dict[str, str]]:
 def test_two_processes_exchange_a_full_protocol_over_vcan0_recorded_by_candump(vcan0, tmp_path):
     log = tmp_path / "candump.log"
     cmd = [
-        sys.executable, "-m", "tools.cli", "buscheck", "--config", str(ROOT / "config" / "vcan.yaml"),
-        "--channel", vcan0, "--ticks", str(TICKS), "--lockstep", "--candump", str(log), "--json",
+        sys.executable, "-m", "tools.cli", "buscheck", "--bus", "socketcan", "--channel", vcan0, "--ticks", str(TICKS), "--lockstep", "--candump", str(log), "--json",
     ]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr + proc.stdout

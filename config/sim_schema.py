@@ -1,0 +1,216 @@
+"""Schema of the ``sim`` section: the HHEA model (patient + exoskeleton + sticks), its physics,
+the patient's own control, sensors and fall criteria.
+
+Segment tables are Winter (2009, after Dempster): mass as a fraction of body mass, length as a
+fraction of body height (Drillis and Contini), centre of mass from the proximal joint and radius
+of gyration about the centre of mass as fractions of the segment length.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from .loader import fail, field_spec
+
+
+@dataclass(frozen=True, kw_only=True)
+class SegmentConfig:
+    """One body segment from an anthropometric table."""
+
+    mass_fraction: float = field_spec(doc="Segment mass / body mass.", min=0.0, max=1.0)
+    length_fraction: float = field_spec(doc="Segment length / body height.", min=0.0, max=1.0)
+    com_fraction: float = field_spec(doc="Centre of mass from the proximal end / segment length.", min=0.0, max=1.0)
+    gyration_fraction: float = field_spec(doc="Radius of gyration about the CoM / segment length.", min=0.0, max=1.0)
+
+    def validate(self) -> None:
+        for key in ("mass_fraction", "length_fraction", "gyration_fraction"):
+            if getattr(self, key) <= 0:
+                fail(key, "must be positive")
+
+
+@dataclass(frozen=True, kw_only=True)
+class PatientBodyConfig:
+    mass_kg: float = field_spec(doc="Body mass of the patient.", unit="kg", min=30.0, max=160.0)
+    height_m: float = field_spec(doc="Body height of the patient.", unit="m", min=1.40, max=2.10)
+    thigh: SegmentConfig = field_spec(doc="Thigh segment.")
+    shank: SegmentConfig = field_spec(doc="Shank (leg) segment.")
+    foot: SegmentConfig = field_spec(doc="Foot segment (length = heel to toe).")
+    upper_arm: SegmentConfig = field_spec(doc="Upper arm segment.")
+    forearm: SegmentConfig = field_spec(doc="Forearm segment.")
+    hand: SegmentConfig = field_spec(doc="Hand segment (the grip sits at its CoM).")
+    ankle_height_fraction: float = field_spec(doc="Ankle joint height / body height.", min=0.01, max=0.1)
+    shoulder_height_fraction: float = field_spec(doc="Shoulder joint height / body height, standing.", min=0.6, max=0.9)
+    hip_width_m: float = field_spec(doc="Distance between the hip joint centres.", unit="m", min=0.1, max=0.4)
+    shoulder_width_m: float = field_spec(doc="Distance between the shoulder joint centres.", unit="m", min=0.2, max=0.6)
+    trunk_com_above_hip_m: float = field_spec(doc="Height of the trunk+head CoM above the hip joints.", unit="m", min=0.0, max=0.6)
+    trunk_depth_m: float = field_spec(doc="Front-back depth of the trunk (for its inertia).", unit="m", min=0.1, max=0.5)
+
+    def validate(self) -> None:
+        limbs = 2 * sum(
+            s.mass_fraction for s in (self.thigh, self.shank, self.foot, self.upper_arm, self.forearm, self.hand)
+        )
+        if limbs >= 0.8:
+            fail("thigh.mass_fraction", f"limb mass fractions sum to {limbs:.3f}: nothing is left for the trunk")
+        if self.shoulder_width_m <= self.hip_width_m * 0.5:
+            fail("shoulder_width_m", "must be wider than half the hip width")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ExoskeletonConfig:
+    trunk_kg: float = field_spec(doc="Backpack, pelvis frame, batteries and hip motors on the trunk.", unit="kg", min=0.0, max=40.0)
+    trunk_com_offset_m: tuple[float, float] = field_spec(
+        doc="Offset (x forward, z up) of the backpack's CoM from the hip joint midpoint.", unit="m", min=-0.5, max=0.8
+    )
+    thigh_kg: float = field_spec(doc="Exoskeleton thigh link with the knee motor, per leg.", unit="kg", min=0.0, max=10.0)
+    shank_kg: float = field_spec(doc="Exoskeleton shank link, per leg.", unit="kg", min=0.0, max=10.0)
+    foot_kg: float = field_spec(doc="Exoskeleton foot plate and shoe, per leg.", unit="kg", min=0.0, max=5.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class StickConfig:
+    mass_kg: float = field_spec(doc="Mass of one stick (crutch).", unit="kg", min=0.1, max=3.0)
+    length_m: float = field_spec(doc="From the grip (hand) to the tip, along the forearm axis.", unit="m", min=0.3, max=1.5)
+    tip_radius_m: float = field_spec(doc="Radius of the rubber tip (contact sphere).", unit="m", min=0.005, max=0.05)
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointConfig:
+    lower_rad: float = field_spec(doc="Lower position limit.", unit="rad", min=-math.pi, max=math.pi)
+    upper_rad: float = field_spec(doc="Upper position limit.", unit="rad", min=-math.pi, max=math.pi)
+    torque_limit_nm: float = field_spec(doc="Largest torque the actuator (or the patient's muscle) applies.", unit="N.m", min=0.0, max=400.0)
+    velocity_limit_rad_s: float = field_spec(doc="Largest joint speed.", unit="rad/s", min=0.1, max=30.0)
+
+    def validate(self) -> None:
+        if self.lower_rad >= self.upper_rad:
+            fail("lower_rad", f"{self.lower_rad} must be below upper_rad {self.upper_rad}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class AnkleConfig:
+    lower_rad: float = field_spec(doc="Plantarflexion limit (negative: toes down).", unit="rad", min=-1.2, max=0.0)
+    upper_rad: float = field_spec(doc="Dorsiflexion limit (toes up).", unit="rad", min=0.0, max=1.0)
+    stiffness_nm_rad: float = field_spec(doc="Passive spring stiffness.", unit="N.m/rad", min=0.0, max=5000.0)
+    rest_rad: float = field_spec(doc="Spring rest angle (positive: dorsiflexed, toes up).", unit="rad", min=-0.6, max=0.6)
+    friction_nm: float = field_spec(doc="Coulomb-like damping torque (a velocity motor with zero target).", unit="N.m", min=0.0, max=50.0)
+
+    def validate(self) -> None:
+        if not self.lower_rad <= self.rest_rad <= self.upper_rad:
+            fail("rest_rad", "must lie between lower_rad and upper_rad")
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointsConfig:
+    hip: JointConfig = field_spec(doc="Exoskeleton hip flexion (+) / extension (-).")
+    knee: JointConfig = field_spec(doc="Exoskeleton knee flexion (+); 0 is straight.")
+    ankle: AnkleConfig = field_spec(doc="Passive spring ankle.")
+    shoulder_flexion: JointConfig = field_spec(doc="Patient's shoulder flexion (+, arm forward).")
+    shoulder_abduction: JointConfig = field_spec(doc="Patient's shoulder abduction (+, arm out to the side).")
+    elbow: JointConfig = field_spec(doc="Patient's elbow flexion (+).")
+
+
+@dataclass(frozen=True, kw_only=True)
+class FootConfig:
+    heel_back_m: float = field_spec(doc="Heel contact behind the ankle.", unit="m", min=0.0, max=0.2)
+    toe_front_m: float = field_spec(doc="Toe contact ahead of the ankle.", unit="m", min=0.05, max=0.35)
+    half_width_m: float = field_spec(doc="Half the sole width (contacts at +-).", unit="m", min=0.01, max=0.1)
+    contact_radius_m: float = field_spec(doc="Radius of the four sole contact spheres.", unit="m", min=0.005, max=0.05)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModelConfig:
+    patient: PatientBodyConfig = field_spec(doc="Anthropometrics of the patient.")
+    exoskeleton: ExoskeletonConfig = field_spec(doc="Masses of the exoskeleton parts.")
+    sticks: StickConfig = field_spec(doc="The two sticks, held rigidly in the hands.")
+    joints: JointsConfig = field_spec(doc="Joint limits and actuator strengths.")
+    foot: FootConfig = field_spec(doc="Sole contact geometry.")
+    friction: float = field_spec(doc="Friction coefficient of soles, stick tips and floor.", min=0.1, max=2.0)
+
+    def validate(self) -> None:
+        p = self.patient
+        shoulder_z = p.shoulder_height_fraction * p.height_m
+        reach = (p.upper_arm.length_fraction + p.forearm.length_fraction) * p.height_m
+        reach += p.hand.com_fraction * p.hand.length_fraction * p.height_m + self.sticks.length_m
+        if reach < shoulder_z + 0.05:
+            fail(
+                "sticks.length_m",
+                f"the sticks cannot reach the ground: arm plus stick reach {reach:.2f} m, shoulders at {shoulder_z:.2f} m",
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class PhysicsConfig:
+    rate_hz: int = field_spec(doc="Physics step rate; the node firmware's joint loop runs at this rate.", unit="Hz", min=200, max=2000)
+    solver_iterations: int = field_spec(doc="Constraint solver iterations per step.", min=5, max=200)
+
+    def validate(self) -> None:
+        if self.rate_hz % 50:
+            fail("rate_hz", "must be a multiple of 50 (whole physics steps per 20 ms tick)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class FirmwareConfig:
+    """The node boards' joint impedance loop (PD to torque at the physics rate, torque-limited)."""
+
+    stiffness_nm_rad: float = field_spec(doc="Track mode position gain.", unit="N.m/rad", min=0.0, max=10000.0)
+    damping_nms_rad: float = field_spec(doc="Track mode velocity gain.", unit="N.m.s/rad", min=0.0, max=200.0)
+    hold_stiffness_nm_rad: float = field_spec(doc="Hold and quick-stop position gain.", unit="N.m/rad", min=0.0, max=10000.0)
+    hold_damping_nms_rad: float = field_spec(doc="Hold and quick-stop velocity gain.", unit="N.m.s/rad", min=0.0, max=200.0)
+    hold_torque_limit_nm: float = field_spec(doc="Torque limit while holding after a quick stop.", unit="N.m", min=0.0, max=400.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SensorsConfig:
+    encoder_resolution_rad: float = field_spec(doc="Joint encoder resolution.", unit="rad", min=1e-6, max=0.01)
+    imu_orientation_noise_rad: float = field_spec(doc="IMU orientation noise (std).", unit="rad", min=0.0, max=0.1)
+    imu_orientation_resolution_rad: float = field_spec(doc="IMU orientation output resolution.", unit="rad", min=1e-6, max=0.01)
+    gyro_noise_rad_s: float = field_spec(doc="Gyroscope noise (std).", unit="rad/s", min=0.0, max=0.5)
+    gyro_resolution_rad_s: float = field_spec(doc="Gyroscope output resolution.", unit="rad/s", min=1e-6, max=0.1)
+    accel_noise_m_s2: float = field_spec(doc="Accelerometer noise (std).", unit="m/s^2", min=0.0, max=2.0)
+    accel_resolution_m_s2: float = field_spec(doc="Accelerometer output resolution.", unit="m/s^2", min=1e-5, max=0.5)
+    force_noise_n: float = field_spec(doc="Stick load cell and plantar sensor noise (std).", unit="N", min=0.0, max=50.0)
+    force_resolution_n: float = field_spec(doc="Stick load cell and plantar sensor resolution.", unit="N", min=0.01, max=10.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class PatientControlConfig:
+    """The patient's part of the walk: where the sticks go, and the arms' balance control."""
+
+    stick_ahead_m: float = field_spec(doc="Nominal stick placement ahead of the front ankle.", unit="m", min=0.05, max=0.8)
+    stick_noise_m: float = field_spec(doc="Std of the placement error (the pilot's intention).", unit="m", min=0.0, max=0.2)
+    stick_half_width_m: float = field_spec(doc="Lateral distance of the stick tips from the midline.", unit="m", min=0.1, max=0.6)
+    control_hz: int = field_spec(doc="Rate of the patient's balance control.", unit="Hz", min=10, max=200)
+    arm_stiffness_nm_rad: float = field_spec(doc="Arm joint stiffness of the patient's posture control.", unit="N.m/rad", min=0.0, max=5000.0)
+    arm_damping_nms_rad: float = field_spec(doc="Arm joint damping of the patient's posture control.", unit="N.m.s/rad", min=0.0, max=100.0)
+    stick_mode: Literal["together", "alternating"] = field_spec(doc="Both sticks moved at once (paper) or one at a time.")
+
+
+@dataclass(frozen=True, kw_only=True)
+class FallConfig:
+    tilt_limit_rad: float = field_spec(doc="Trunk roll or pitch beyond this is a fall.", unit="rad", min=0.2, max=1.5)
+    min_hip_height_m: float = field_spec(doc="Hip joints lower than this is a fall (collapse).", unit="m", min=0.1, max=1.2)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SagittalConfig:
+    """The spring-damper that holds the trunk to the walking plane in the sagittal mode."""
+
+    lateral_stiffness_n_m: float = field_spec(doc="Against sideways motion of the trunk.", unit="N/m", min=0.0, max=1e6)
+    lateral_damping_ns_m: float = field_spec(doc="Against sideways velocity of the trunk.", unit="N.s/m", min=0.0, max=1e5)
+    rotational_stiffness_nm_rad: float = field_spec(doc="Against trunk roll and yaw.", unit="N.m/rad", min=0.0, max=1e6)
+    rotational_damping_nms_rad: float = field_spec(doc="Against trunk roll and yaw rates.", unit="N.m.s/rad", min=0.0, max=1e5)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SimConfig:
+    mode: Literal["full3d", "sagittal"] = field_spec(
+        doc="full3d: the product's model; sagittal: trunk held to the walking plane (faster, more robust)."
+    )
+    physics: PhysicsConfig = field_spec(doc="Physics engine settings.")
+    sagittal: SagittalConfig = field_spec(doc="Plane constraint of the sagittal mode.")
+    model: ModelConfig = field_spec(doc="The HHEA model.")
+    firmware: FirmwareConfig = field_spec(doc="Emulated node-board joint loop.")
+    sensors: SensorsConfig = field_spec(doc="Sensor noise and resolution.")
+    patient: PatientControlConfig = field_spec(doc="The patient model.")
+    fall: FallConfig = field_spec(doc="Fall detection (ground truth).")

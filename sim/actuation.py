@@ -1,0 +1,97 @@
+"""Joint-level actuation: the node boards' firmware loop for the exoskeleton joints, and the same
+impedance structure for the patient's arm muscles.
+
+A node board's interface is what the CAN protocol carries: mode (track / hold / quick-stop /
+disable), position target, velocity and torque feed-forward, torque limit; it reports encoder,
+velocity and applied torque. The firmware's loop is a joint impedance at the physics rate:
+
+    tau = clip(K (q* - q) + D (qd* - qd) + tau_ff, -limit, limit)
+
+``hold`` and ``quick_stop`` hold the position latched when the mode was entered, with the hold
+gains and the hold torque limit (CiA 402 "quick stop and stay"); ``disable`` applies no torque.
+Commands are validated here, at the boundary: a non-finite value, a limit outside the joint's
+rating or a target outside the joint's range is rejected (counted; the previous command stays).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class Mode(enum.IntEnum):
+    """Same values as the protocol's JOINT_COMMAND.mode."""
+
+    HOLD = 0
+    TRACK = 1
+    QUICK_STOP = 2
+    DISABLE = 3
+
+
+@dataclass(frozen=True)
+class Gains:
+    stiffness: np.ndarray  # (n,) N.m/rad
+    damping: np.ndarray  # (n,) N.m.s/rad
+    hold_stiffness: np.ndarray
+    hold_damping: np.ndarray
+    hold_torque_limit: np.ndarray
+
+
+class JointImpedance:
+    """Impedance loops of ``n`` joints, vectorised; ``torques(q, qd)`` runs once per physics step."""
+
+    def __init__(self, names: tuple[str, ...], lower: np.ndarray, upper: np.ndarray, rated_torque: np.ndarray, gains: Gains) -> None:
+        self.names = names
+        self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
+        self.rated = np.asarray(rated_torque, float)
+        self.gains = gains
+        n = len(names)
+        self.mode = np.full(n, int(Mode.HOLD))
+        self.target = np.zeros(n)
+        self.velocity_ff = np.zeros(n)
+        self.torque_ff = np.zeros(n)
+        self.limit = self.gains.hold_torque_limit.copy()
+        self.hold_position = np.zeros(n)
+        self.rejected = 0
+        self.applied = np.zeros(n)
+        self._needs_latch = np.ones(n, dtype=bool)
+
+    def index(self, name: str) -> int:
+        return self.names.index(name)
+
+    def command(self, i: int, mode: int, position: float, velocity: float = 0.0, torque: float = 0.0, limit: float | None = None) -> bool:
+        """Set joint ``i``'s command; returns False (and counts a rejection) for an invalid one."""
+        limit = self.rated[i] if limit is None else limit
+        values = (position, velocity, torque, limit)
+        if mode not in (0, 1, 2, 3) or not all(np.isfinite(values)):
+            self.rejected += 1
+            return False
+        if not (self.lower[i] <= position <= self.upper[i]) or not (0.0 <= limit <= self.rated[i]):
+            self.rejected += 1
+            return False
+        if mode in (Mode.HOLD, Mode.QUICK_STOP) and self.mode[i] not in (Mode.HOLD, Mode.QUICK_STOP):
+            self._needs_latch[i] = True
+        self.mode[i] = mode
+        self.target[i], self.velocity_ff[i], self.torque_ff[i], self.limit[i] = position, velocity, torque, limit
+        return True
+
+    def torques(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Torque of every joint for the measured positions and velocities."""
+        g = self.gains
+        if self._needs_latch.any():
+            self.hold_position[self._needs_latch] = q[self._needs_latch]
+            self._needs_latch[:] = False
+        track = self.mode == Mode.TRACK
+        hold = (self.mode == Mode.HOLD) | (self.mode == Mode.QUICK_STOP)
+        tau = np.where(
+            track,
+            g.stiffness * (self.target - q) + g.damping * (self.velocity_ff - qd) + self.torque_ff,
+            g.hold_stiffness * (self.hold_position - q) - g.hold_damping * qd,
+        )
+        limit = np.where(track, self.limit, np.minimum(g.hold_torque_limit, self.rated))
+        tau = np.clip(tau, -limit, limit)
+        tau[~(track | hold)] = 0.0
+        self.applied = tau
+        return tau

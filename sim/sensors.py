@@ -1,0 +1,110 @@
+"""The sensors AIDER has, sampled once per 20 ms tick with seeded noise and realistic resolution.
+
+* joint encoders (exoskeleton hips and knees): position, velocity, applied motor torque;
+* per stick: axial ground-reaction force (load cell) and the stick IMU's orientation;
+* trunk IMU: orientation, angular rate and specific force in the body frame;
+* plantar insoles: heel and toe normal force per foot.
+
+Everything the node boards report comes from here; the controller never sees the world itself.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from config.sim_schema import SensorsConfig
+from sim.model import EXO_JOINTS
+from sim.world import GRAVITY, World
+
+
+def quantise(value: np.ndarray | float, resolution: float) -> np.ndarray:
+    return np.round(np.asarray(value) / resolution) * resolution
+
+
+def rpy_from_matrix(rot: np.ndarray) -> np.ndarray:
+    """ZYX Euler angles (roll, pitch, yaw) of a rotation matrix; pitch > 0 is nose down about +y."""
+    pitch = -np.arcsin(np.clip(rot[2, 0], -1.0, 1.0))
+    roll = np.arctan2(rot[2, 1], rot[2, 2])
+    yaw = np.arctan2(rot[1, 0], rot[0, 0])
+    return np.array([roll, pitch, yaw])
+
+
+@dataclass(frozen=True)
+class Reading:
+    """One tick's sensor values (SI units; arrays ordered left then right, joints in node order)."""
+
+    time_s: float
+    joint_position_rad: np.ndarray  # (4,) left hip, left knee, right hip, right knee
+    joint_velocity_rad_s: np.ndarray  # (4,)
+    joint_torque_nm: np.ndarray  # (4,)
+    stick_force_n: np.ndarray  # (2,)
+    stick_rpy_rad: np.ndarray  # (2, 3)
+    trunk_rpy_rad: np.ndarray  # (3,)
+    trunk_rate_rad_s: np.ndarray  # (3,) body frame
+    trunk_specific_force_m_s2: np.ndarray  # (3,) body frame
+    heel_force_n: np.ndarray  # (2,)
+    toe_force_n: np.ndarray  # (2,)
+
+
+class Sensors:
+    """Samples a :class:`World`; noise from an injected generator (same seed, same readings)."""
+
+    def __init__(self, world: World, cfg: SensorsConfig, rng: np.random.Generator) -> None:
+        self.world, self.cfg, self.rng = world, cfg, rng
+        self._exo = [world.joint_index[n] for n in EXO_JOINTS]
+        foot = world.cfg.model.foot
+        self._heel_toe_split_x = (foot.toe_front_m - foot.heel_back_m) / 2
+
+    def _noise(self, std: float, shape: tuple[int, ...] | int) -> np.ndarray:
+        return self.rng.normal(0.0, std, shape) if std > 0 else np.zeros(shape)
+
+    def stick_force(self, side: str) -> float:
+        """Axial force along the stick (compression positive) from the tip's contact forces."""
+        w = self.world
+        _, rot = w.link_frame(f"forearm_{side}")
+        axis = rot[:, 2]  # the stick points along -z of the forearm frame; ground pushes along +z
+        total = np.zeros(3)
+        for cp in w.contacts(f"forearm_{side}"):
+            total += cp[9] * np.asarray(cp[7]) + cp[10] * np.asarray(cp[11]) + cp[12] * np.asarray(cp[13])
+        return float(total @ axis)
+
+    def plantar(self, side: str) -> tuple[float, float]:
+        """Heel and toe normal force: contacts binned by their position along the foot."""
+        w = self.world
+        origin, rot = w.link_frame(f"foot_{side}")
+        heel = toe = 0.0
+        for cp in w.contacts(f"foot_{side}"):
+            x_local = (np.asarray(cp[6]) - origin) @ rot[:, 0]
+            if x_local < self._heel_toe_split_x:
+                heel += cp[9]
+            else:
+                toe += cp[9]
+        return heel, toe
+
+    def read(self) -> Reading:
+        w, cfg = self.world, self.cfg
+        q = w.q[self._exo]
+        qd = w.qd[self._exo]
+        tau = w.exo.applied
+        sticks = np.array([self.stick_force("l"), self.stick_force("r")])
+        stick_rpy = np.array([rpy_from_matrix(w.link_frame(f"forearm_{s}")[1]) for s in "lr"])
+        _, rot = w.link_frame("trunk")
+        omega_world = np.array(w.client.getBaseVelocity(w.robot)[1])
+        specific = rot.T @ (w.base_acceleration + np.array([0.0, 0.0, GRAVITY]))
+        heel_toe = np.array([self.plantar("l"), self.plantar("r")])
+        force_res, force_std = cfg.force_resolution_n, cfg.force_noise_n
+        return Reading(
+            time_s=w.time_s,
+            joint_position_rad=quantise(q, cfg.encoder_resolution_rad),
+            joint_velocity_rad_s=quantise(qd, 0.001),
+            joint_torque_nm=quantise(tau, 0.05),
+            stick_force_n=quantise(sticks + self._noise(force_std, 2), force_res),
+            stick_rpy_rad=quantise(stick_rpy + self._noise(cfg.imu_orientation_noise_rad, (2, 3)), cfg.imu_orientation_resolution_rad),
+            trunk_rpy_rad=quantise(rpy_from_matrix(rot) + self._noise(cfg.imu_orientation_noise_rad, 3), cfg.imu_orientation_resolution_rad),
+            trunk_rate_rad_s=quantise(rot.T @ omega_world + self._noise(cfg.gyro_noise_rad_s, 3), cfg.gyro_resolution_rad_s),
+            trunk_specific_force_m_s2=quantise(specific + self._noise(cfg.accel_noise_m_s2, 3), cfg.accel_resolution_m_s2),
+            heel_force_n=quantise(np.maximum(heel_toe[:, 0] + self._noise(force_std, 2), 0.0), force_res),
+            toe_force_n=quantise(np.maximum(heel_toe[:, 1] + self._noise(force_std, 2), 0.0), force_res),
+        )

@@ -1,0 +1,248 @@
+"""One simulated world: a PyBullet client with the floor and the HHEA, stepped at the physics rate.
+
+Every world has its own physics client (never PyBullet's global one) and is disconnected when
+closed; a new episode builds a new world, so runs with the same seed and commands are
+bit-identical. Joints are torque-driven only: the exoskeleton's four joints through the node
+boards' impedance loop (:class:`sim.actuation.JointImpedance`, driven by whoever plays the node
+firmware's client), the arms through the patient's, the ankles by their springs. The trunk is
+never moved after the initial pose; in the sagittal mode a spring-damper (an external wrench)
+holds it to the walking plane.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pybullet
+import pybullet_data
+from pybullet_utils.bullet_client import BulletClient
+
+from config.sim_schema import SimConfig
+from sim.actuation import Gains, JointImpedance
+from sim.model import (
+    ANKLE_JOINTS,
+    ARM_JOINT_NAMES,
+    EXO_JOINTS,
+    JOINT_ORDER,
+    Body,
+    arm_ik,
+    build_body,
+    leg_ik,
+    urdf_file,
+)
+
+GRAVITY = 9.81
+URDF_CACHE = Path(tempfile.gettempdir()) / "aider-exo-urdf"
+
+
+@dataclass(frozen=True)
+class StancePose:
+    """An initial posture: where the feet and stick tips are, and how the trunk leans."""
+
+    foot_x_m: tuple[float, float]  # left, right ankle x
+    tip_xy_m: tuple[tuple[float, float], tuple[float, float]]  # left, right stick tip (x, y)
+    trunk_pitch_rad: float = 0.05
+    knee_rad: float = 0.08
+    hip_x_m: float | None = None  # default: midway between the ankles
+
+
+class World:
+    """The floor, the HHEA, its joint loops and the physics clock."""
+
+    def __init__(self, cfg: SimConfig, *, gui: bool = False) -> None:
+        self.cfg = cfg
+        self.body: Body = build_body(cfg.model)
+        self.dt = 1.0 / cfg.physics.rate_hz
+        self.steps = 0
+        self.client = BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+        c = self.client
+        c.setAdditionalSearchPath(pybullet_data.getDataPath())
+        c.setPhysicsEngineParameter(
+            fixedTimeStep=self.dt, numSolverIterations=cfg.physics.solver_iterations, deterministicOverlappingPairs=1
+        )
+        c.setGravity(0, 0, -GRAVITY)
+        self.floor = c.loadURDF("plane.urdf")
+        path = urdf_file(cfg.model, URDF_CACHE)
+        self.robot = c.loadURDF(str(path), [0, 0, 2], flags=pybullet.URDF_USE_INERTIA_FROM_FILE)
+        self.joint_index = {c.getJointInfo(self.robot, i)[1].decode(): i for i in range(c.getNumJoints(self.robot))}
+        assert tuple(self.joint_index) == JOINT_ORDER, "URDF joint order changed"
+        self.link_index = {c.getJointInfo(self.robot, i)[12].decode(): i for i in range(c.getNumJoints(self.robot))}
+        self.link_index["trunk"] = -1
+        self.masses = np.array([c.getDynamicsInfo(self.robot, i)[0] for i in range(-1, c.getNumJoints(self.robot))])
+        self.total_mass = float(self.masses.sum())
+        mu = cfg.model.friction
+        c.changeDynamics(self.floor, -1, lateralFriction=mu)
+        for i in range(-1, c.getNumJoints(self.robot)):
+            c.changeDynamics(self.robot, i, lateralFriction=mu)
+        all_joints = list(range(len(JOINT_ORDER)))
+        # The default velocity motors would fight the torque control: switch them off ...
+        c.setJointMotorControlArray(self.robot, all_joints, pybullet.VELOCITY_CONTROL, forces=[0.0] * len(all_joints))
+        # ... except at the ankles, where a weak one is the damper (implicit, stable at 250 Hz).
+        ankles = [self.joint_index[n] for n in ANKLE_JOINTS]
+        c.setJointMotorControlArray(self.robot, ankles, pybullet.VELOCITY_CONTROL, targetVelocities=[0, 0],
+                                    forces=[cfg.model.joints.ankle.friction_nm] * 2)
+        self._exo_idx = np.array([self.joint_index[n] for n in EXO_JOINTS])
+        self._arm_idx = np.array([self.joint_index[n] for n in ARM_JOINT_NAMES])
+        self._ankle_idx = np.array(ankles)
+        self._torque_idx = list(self._exo_idx) + list(self._arm_idx) + list(self._ankle_idx)
+        j = cfg.model.joints
+        fw = cfg.firmware
+        exo_specs = [j.hip, j.knee, j.hip, j.knee]
+        self.exo = JointImpedance(
+            EXO_JOINTS,
+            np.array([s.lower_rad for s in exo_specs]), np.array([s.upper_rad for s in exo_specs]),
+            np.array([s.torque_limit_nm for s in exo_specs]),
+            Gains(np.full(4, fw.stiffness_nm_rad), np.full(4, fw.damping_nms_rad), np.full(4, fw.hold_stiffness_nm_rad),
+                  np.full(4, fw.hold_damping_nms_rad), np.full(4, fw.hold_torque_limit_nm)),
+        )
+        arm_specs = [j.shoulder_flexion, j.shoulder_abduction, j.elbow] * 2
+        pc = cfg.patient
+        self.arms = JointImpedance(
+            ARM_JOINT_NAMES,
+            np.array([s.lower_rad for s in arm_specs]), np.array([s.upper_rad for s in arm_specs]),
+            np.array([s.torque_limit_nm for s in arm_specs]),
+            Gains(np.full(6, pc.arm_stiffness_nm_rad), np.full(6, pc.arm_damping_nms_rad), np.full(6, pc.arm_stiffness_nm_rad),
+                  np.full(6, pc.arm_damping_nms_rad), np.array([s.torque_limit_nm for s in arm_specs])),
+        )
+        self.q = np.zeros(len(JOINT_ORDER))
+        self.qd = np.zeros(len(JOINT_ORDER))
+        self.tau = np.zeros(len(JOINT_ORDER))
+        self.base_velocity_prev = np.zeros(3)
+        self.base_acceleration = np.zeros(3)
+
+    # -- lifecycle -------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        if self.client is not None:
+            self.client.disconnect()
+            self.client = None  # type: ignore[assignment]
+
+    def __enter__(self) -> World:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def time_s(self) -> float:
+        return self.steps * self.dt
+
+    # -- initial pose ----------------------------------------------------------------------------
+
+    def place(self, pose: StancePose) -> None:
+        """Put the HHEA in ``pose``, at rest, with every joint loop holding that posture.
+
+        The only time the base is moved: before the first step of an episode.
+        """
+        c, b = self.client, self.body
+        theta = pose.trunk_pitch_rad
+        hip_x = pose.hip_x_m if pose.hip_x_m is not None else sum(pose.foot_x_m) / 2
+        # Leg length from the knee bend; hip height so that the soles touch the floor.
+        q = dict.fromkeys(JOINT_ORDER, 0.0)
+        # The hip height at which the farther foot has the given knee bend; the nearer bends more.
+        reach = math.sqrt(b.thigh_m**2 + b.shank_m**2 + 2 * b.thigh_m * b.shank_m * math.cos(pose.knee_rad))
+        hip_z = min(b.ankle_height_m + math.sqrt(max(reach**2 - (fx - hip_x) ** 2, 0.0)) for fx in pose.foot_x_m)
+        for side, foot_x in zip("lr", pose.foot_x_m):
+            h_world, knee = leg_ik(np.array([foot_x - hip_x, b.ankle_height_m - hip_z]), b.thigh_m, b.shank_m)
+            q[f"hip_{side}"] = h_world + theta
+            q[f"knee_{side}"] = knee
+            q[f"ankle_{side}"] = theta - q[f"hip_{side}"] + knee  # sole flat
+        rot = np.array(c.getMatrixFromQuaternion(c.getQuaternionFromEuler([0, theta, 0]))).reshape(3, 3)
+        hip_world = np.array([hip_x, 0.0, hip_z])
+        upper, lower = b.arm_reach_m
+        for side, (tx, ty) in zip("lr", pose.tip_xy_m):
+            sign = 1.0 if side == "l" else -1.0
+            shoulder = hip_world + rot @ np.array([0.0, sign * b.shoulder_half_width_m, b.shoulder_above_hip_m])
+            tip = np.array([tx, ty, self.cfg.model.sticks.tip_radius_m + 0.002])
+            flex, abd, elbow = arm_ik(rot.T @ (tip - shoulder), upper, lower, side)
+            q[f"shoulder_flexion_{side}"], q[f"shoulder_abduction_{side}"], q[f"elbow_{side}"] = flex, abd, elbow
+        com_local = np.array(c.getDynamicsInfo(self.robot, -1)[3])  # base inertial frame offset
+        c.resetBasePositionAndOrientation(
+            self.robot, (hip_world + rot @ com_local + np.array([0, 0, 0.002])).tolist(), c.getQuaternionFromEuler([0, theta, 0])
+        )
+        c.resetBaseVelocity(self.robot, [0, 0, 0], [0, 0, 0])
+        for name, value in q.items():
+            c.resetJointState(self.robot, self.joint_index[name], value, 0.0)
+        self.read_joints()
+        for i, name in enumerate(EXO_JOINTS):
+            self.exo.command(i, 1, q[name], 0.0, 0.0)
+        for i, name in enumerate(ARM_JOINT_NAMES):
+            self.arms.command(i, 1, q[name], 0.0, 0.0)
+        self.base_velocity_prev = np.zeros(3)
+
+    # -- stepping ------------------------------------------------------------------------------
+
+    def read_joints(self) -> None:
+        states = self.client.getJointStates(self.robot, range(len(JOINT_ORDER)))
+        for i, s in enumerate(states):
+            self.q[i], self.qd[i] = s[0], s[1]
+
+    def step(self) -> None:
+        """One physics step: joint loops (firmware, muscles, ankle springs), then the physics."""
+        c = self.client
+        self.read_joints()
+        q, qd = self.q, self.qd
+        tau_exo = self.exo.torques(q[self._exo_idx], qd[self._exo_idx])
+        tau_arm = self.arms.torques(q[self._arm_idx], qd[self._arm_idx])
+        ankle = self.cfg.model.joints.ankle
+        tau_ankle = -ankle.stiffness_nm_rad * (q[self._ankle_idx] - ankle.rest_rad)
+        forces = np.concatenate([tau_exo, tau_arm, tau_ankle])
+        self.tau[self._torque_idx] = forces
+        c.setJointMotorControlArray(self.robot, self._torque_idx, pybullet.TORQUE_CONTROL, forces=forces.tolist())
+        if self.cfg.mode == "sagittal":
+            self._hold_to_plane()
+        c.stepSimulation()
+        self.steps += 1
+        v = np.array(c.getBaseVelocity(self.robot)[0])
+        self.base_acceleration = (v - self.base_velocity_prev) / self.dt
+        self.base_velocity_prev = v
+
+    def _hold_to_plane(self) -> None:
+        c, s = self.client, self.cfg.sagittal
+        pos, orn = c.getBasePositionAndOrientation(self.robot)
+        lin, ang = c.getBaseVelocity(self.robot)
+        roll, _, yaw = c.getEulerFromQuaternion(orn)
+        fy = -s.lateral_stiffness_n_m * pos[1] - s.lateral_damping_ns_m * lin[1]
+        c.applyExternalForce(self.robot, -1, [0, fy, 0], pos, pybullet.WORLD_FRAME)
+        tx = -s.rotational_stiffness_nm_rad * roll - s.rotational_damping_nms_rad * ang[0]
+        tz = -s.rotational_stiffness_nm_rad * yaw - s.rotational_damping_nms_rad * ang[2]
+        c.applyExternalTorque(self.robot, -1, [tx, 0, tz], pybullet.WORLD_FRAME)
+
+    # -- queries -------------------------------------------------------------------------------
+
+    def link_positions(self) -> np.ndarray:
+        """World positions of every link's centre of mass, base first: (n_links + 1, 3)."""
+        c = self.client
+        base = c.getBasePositionAndOrientation(self.robot)[0]
+        states = c.getLinkStates(self.robot, range(len(JOINT_ORDER)))
+        return np.array([base] + [s[0] for s in states])
+
+    def com(self) -> np.ndarray:
+        return self.masses @ self.link_positions() / self.total_mass
+
+    def contacts(self, link: str) -> list[tuple]:
+        """PyBullet contact points between a robot link and the floor."""
+        return self.client.getContactPoints(bodyA=self.robot, bodyB=self.floor, linkIndexA=self.link_index[link])
+
+    def contact_normal_force(self, link: str) -> float:
+        return float(sum(cp[9] for cp in self.contacts(link)))
+
+    def touching_links(self) -> set[str]:
+        names = {i: n for n, i in self.link_index.items()}
+        return {names[cp[3]] for cp in self.client.getContactPoints(bodyA=self.robot, bodyB=self.floor)}
+
+    def link_frame(self, link: str) -> tuple[np.ndarray, np.ndarray]:
+        """World position of the link frame's origin and its rotation matrix."""
+        c = self.client
+        i = self.link_index[link]
+        if i == -1:
+            pos, orn = c.getBasePositionAndOrientation(self.robot)
+            com_local = np.array(c.getDynamicsInfo(self.robot, -1)[3])
+            rot = np.array(c.getMatrixFromQuaternion(orn)).reshape(3, 3)
+            return np.array(pos) - rot @ com_local, rot
+        state = c.getLinkState(self.robot, i)
+        return np.array(state[4]), np.array(c.getMatrixFromQuaternion(state[5])).reshape(3, 3)

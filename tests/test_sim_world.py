@@ -1,0 +1,122 @@
+"""The HHEA world: loads from config, stands on feet and sticks, sensors read what physics does."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from config import ConfigError, default_config_path, load_config, with_overrides
+from sim.model import JOINT_ORDER, build_body, urdf
+from sim.sensors import Sensors
+from sim.world import GRAVITY, StancePose, World
+
+CFG = load_config(default_config_path())
+STAND = StancePose(foot_x_m=(0.0, 0.0), tip_xy_m=((0.40, 0.30), (0.40, -0.30)), trunk_pitch_rad=0.10, hip_x_m=0.06)
+
+
+def _world(mode: str = "full3d") -> World:
+    return World(dataclasses.replace(CFG.sim, mode=mode))
+
+
+def test_body_matches_the_configured_patient_and_exoskeleton():
+    body = build_body(CFG.sim.model)
+    exo = CFG.sim.model.exoskeleton
+    sticks = 2 * CFG.sim.model.sticks.mass_kg
+    expected = CFG.sim.model.patient.mass_kg + exo.trunk_kg + 2 * (exo.thigh_kg + exo.shank_kg + exo.foot_kg) + sticks
+    assert body.total_mass_kg == pytest.approx(expected + 2 * 0.05)  # + the two shoulder link stubs
+    text = urdf(CFG.sim.model)
+    assert text.count('type="revolute"') == 12 and 'name="knee_l"' in text
+
+
+@pytest.mark.parametrize("mode", ["full3d", "sagittal"])
+def test_standing_contact_forces_carry_the_weight(mode):
+    with _world(mode) as world:
+        world.place(STAND)
+        for _ in range(int(2.0 / world.dt)):
+            world.step()
+        links = ("foot_l", "foot_r", "forearm_l", "forearm_r")
+        forces = [world.contact_normal_force(link) for link in links]
+        weight = world.total_mass * GRAVITY
+        assert sum(forces) == pytest.approx(weight, rel=0.02)
+        assert all(f > 5.0 for f in forces), forces  # both feet and both sticks carry load
+        assert world.touching_links() == set(links)
+
+
+def test_trunk_imu_reads_gravity_at_a_known_tilt():
+    pose = dataclasses.replace(STAND, trunk_pitch_rad=0.30, hip_x_m=0.02)
+    with _world("sagittal") as world:
+        world.place(pose)
+        for _ in range(int(1.5 / world.dt)):
+            world.step()
+        sensors = Sensors(world, CFG.sim.sensors, np.random.default_rng(0))
+        readings = [sensors.read() for _ in range(1)]
+        pitch = world.link_frame("trunk")[1]
+        true_pitch = -np.arcsin(pitch[2, 0])
+        r = readings[0]
+        assert r.trunk_rpy_rad[1] == pytest.approx(true_pitch, abs=0.01)
+        expected = GRAVITY * np.array([-np.sin(true_pitch), 0.0, np.cos(true_pitch)])
+        assert r.trunk_specific_force_m_s2 == pytest.approx(expected, abs=0.3)
+
+
+def test_encoders_match_joint_angles_within_their_resolution():
+    with _world() as world:
+        world.place(STAND)
+        for _ in range(50):
+            world.step()
+        sensors = Sensors(world, CFG.sim.sensors, np.random.default_rng(1))
+        reading = sensors.read()
+        idx = [JOINT_ORDER.index(n) for n in ("hip_l", "knee_l", "hip_r", "knee_r")]
+        res = CFG.sim.sensors.encoder_resolution_rad
+        assert np.all(np.abs(reading.joint_position_rad - world.q[idx]) <= res / 2 + 1e-12)
+
+
+def _stream(seed: int, ticks: int = 25) -> list[np.ndarray]:
+    with _world() as world:
+        world.place(STAND)
+        sensors = Sensors(world, CFG.sim.sensors, np.random.default_rng(seed))
+        out = []
+        steps = world.cfg.physics.rate_hz // 50
+        for _ in range(ticks):
+            for _ in range(steps):
+                world.step()
+            r = sensors.read()
+            out.append(np.concatenate([np.ravel(getattr(r, f.name)) for f in dataclasses.fields(r)]))
+        return out
+
+
+def test_same_seed_same_sensor_stream_and_another_seed_differs():
+    a, b, c = _stream(7), _stream(7), _stream(8)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert not all(np.array_equal(x, y) for x, y in zip(a, c))
+
+
+def test_invalid_actuator_commands_are_rejected_and_counted():
+    with _world() as world:
+        world.place(STAND)
+        target = world.exo.target.copy()
+        assert not world.exo.command(0, 1, float("nan"))
+        assert not world.exo.command(1, 1, 0.2, torque=float("inf"))
+        assert not world.exo.command(2, 1, 5.0)  # beyond the hip's range
+        assert not world.exo.command(3, 1, 0.2, limit=500.0)  # beyond the motor's rating
+        assert not world.exo.command(0, 9, 0.2)
+        assert world.exo.rejected == 5
+        assert np.array_equal(world.exo.target, target)
+        world.step()
+        assert np.all(np.isfinite(world.q))
+
+
+@pytest.mark.parametrize(
+    "key, value, message",
+    [
+        ("sim.model.patient.mass_kg", -70.0, "sim.model.patient.mass_kg: -70.0 is below the minimum 30"),
+        ("sim.model.joints.knee.lower_rad", 2.5, "sim.model.joints.knee.lower_rad: 2.5 must be below upper_rad 2.0"),
+        ("sim.model.sticks.length_m", 0.30, "sim.model.sticks.length_m: the sticks cannot reach the ground"),
+        ("sim.model.exoskeleton.thigh_kg", -1.0, "sim.model.exoskeleton.thigh_kg: -1.0 is below the minimum 0"),
+    ],
+)
+def test_invalid_model_parameters_fail_at_load_naming_the_key(key, value, message):
+    with pytest.raises(ConfigError) as info:
+        with_overrides(CFG, {key: value})
+    assert message in str(info.value) and "\n" not in str(info.value)
