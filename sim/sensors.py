@@ -19,6 +19,16 @@ from sim.model import EXO_JOINTS
 from sim.world import GRAVITY, World
 
 
+def contact_force_on_robot(cp: tuple) -> np.ndarray:
+    """World force the floor exerts on the robot at one PyBullet contact point (robot = body A).
+
+    The normal force acts along ``contactNormalOnB`` (B towards A); the reported lateral friction
+    forces act on A *against* their direction vectors (checked against static equilibrium of the
+    joint torques in tests/test_sim_kinematics.py).
+    """
+    return cp[9] * np.asarray(cp[7]) - cp[10] * np.asarray(cp[11]) - cp[12] * np.asarray(cp[13])
+
+
 def quantise(value: np.ndarray | float, resolution: float) -> np.ndarray:
     return np.round(np.asarray(value) / resolution) * resolution
 
@@ -67,7 +77,7 @@ class Sensors:
         axis = rot[:, 2]  # the stick points along -z of the forearm frame; ground pushes along +z
         total = np.zeros(3)
         for cp in w.contacts(f"forearm_{side}"):
-            total += cp[9] * np.asarray(cp[7]) + cp[10] * np.asarray(cp[11]) + cp[12] * np.asarray(cp[13])
+            total += contact_force_on_robot(cp)
         return float(total @ axis)
 
     def plantar(self, side: str) -> tuple[float, float]:

@@ -1,0 +1,139 @@
+"""Quasi-static whole-body balance by contact-force distribution (pure numpy).
+
+A desired wrench at the centre of mass is distributed over the loaded contacts: feet act at their
+ankle pins (a passive pitch ankle transmits force but no moment), stick tips at the tip. Each
+contact force lies in a linearised friction cone (non-negative combinations of four pyramid
+edges) above a minimum normal load, so a contact can push but never pull. The distribution is a
+non-negative least-squares fit; when the CoM lies outside the support polygon no admissible
+distribution produces the wrench and the residual says so: that is how the HHEA falls.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def nnls(a: np.ndarray, b: np.ndarray, max_iter: int | None = None) -> np.ndarray:
+    """Lawson-Hanson non-negative least squares: argmin ||a x - b|| subject to x >= 0."""
+    m, n = a.shape
+    x = np.zeros(n)
+    passive = np.zeros(n, dtype=bool)
+    w = a.T @ (b - a @ x)
+    tol = 10 * np.finfo(float).eps * np.linalg.norm(a, 1) * max(m, n)
+    for _ in range(max_iter or 3 * n):
+        if passive.all() or np.max(np.where(passive, -np.inf, w)) <= tol:
+            break
+        passive[int(np.argmax(np.where(passive, -np.inf, w)))] = True
+        while True:
+            z = np.zeros(n)
+            z[passive] = np.linalg.lstsq(a[:, passive], b, rcond=None)[0]
+            if np.all(z[passive] > tol):
+                x = z
+                break
+            mask = passive & (z <= tol)
+            alpha = np.min(x[mask] / (x[mask] - z[mask]))
+            x = x + alpha * (z - x)
+            passive &= x > tol
+        w = a.T @ (b - a @ x)
+    return x
+
+
+@dataclass(frozen=True)
+class Contact:
+    """A support point: ``link`` is the joint index of its link, ``point`` its world position."""
+
+    name: str
+    link: int
+    point: np.ndarray
+    cost: float  # relative effort of loading it (arms cost more than legs)
+
+
+def pyramid_edges(mu: float) -> np.ndarray:
+    """(4, 3) unit-normal-load edges of a friction pyramid with coefficient ``mu``."""
+    return np.array([[mu, 0, 1], [-mu, 0, 1], [0, mu, 1], [0, -mu, 1]], dtype=float)
+
+
+def distribute(
+    wrench: np.ndarray,
+    com: np.ndarray,
+    contacts: list[Contact],
+    *,
+    mu: float,
+    min_normal_n: float,
+    weights: np.ndarray,
+    known_moment: np.ndarray | None = None,
+) -> tuple[np.ndarray, float]:
+    """Contact forces (k, 3) that best produce ``wrench`` = (force, moment about the CoM).
+
+    ``known_moment`` is a moment the body receives anyway (the passive ankle springs), which the
+    contact forces need not supply. Returns the forces and the weighted residual norm of the fit.
+    """
+    if known_moment is not None:
+        wrench = wrench - np.concatenate([np.zeros(3), known_moment])
+    k = len(contacts)
+    if k == 0:
+        return np.zeros((0, 3)), float(np.linalg.norm(weights * wrench))
+    edges = pyramid_edges(mu)
+    a = np.zeros((6, 4 * k))
+    base = np.zeros(6)
+    for c, contact in enumerate(contacts):
+        r = contact.point - com
+        for e in range(4):
+            a[:3, 4 * c + e] = edges[e]
+            a[3:, 4 * c + e] = np.cross(r, edges[e])
+        f0 = np.array([0.0, 0.0, min_normal_n])
+        base[:3] += f0
+        base[3:] += np.cross(r, f0)
+    reg = np.repeat([np.sqrt(ct.cost) for ct in contacts], 4)
+    lhs = np.vstack([weights[:, None] * a, np.diag(reg)])
+    rhs = np.concatenate([weights * (wrench - base), np.zeros(4 * k)])
+    lam = nnls(lhs, rhs)
+    forces = lam.reshape(k, 4) @ edges + np.array([0.0, 0.0, min_normal_n])
+    residual = float(np.linalg.norm(weights * (a @ lam + base - wrench)))
+    return forces, residual
+
+
+@dataclass(frozen=True)
+class WrenchGains:
+    """Spring-damper of the CoM and trunk posture, as in the balance controllers of legged robots."""
+
+    fore_aft_n_m: float = 1500.0
+    fore_aft_ns_m: float = 500.0
+    lateral_n_m: float = 1000.0
+    lateral_ns_m: float = 400.0
+    height_n_m: float = 3000.0
+    height_ns_m: float = 600.0
+    tilt_nm_rad: float = 1500.0
+    tilt_nms_rad: float = 150.0
+    yaw_nms_rad: float = 50.0
+
+
+def desired_wrench(
+    mass_kg: float,
+    com: np.ndarray,
+    com_velocity: np.ndarray,
+    com_target_xy: np.ndarray,
+    hip_height: float,
+    hip_height_target: float,
+    hip_vz: float,
+    trunk_rpy: np.ndarray,
+    trunk_rate: np.ndarray,
+    trunk_target_rp: np.ndarray,
+    gains: WrenchGains,
+    gravity: float = 9.81,
+) -> np.ndarray:
+    """(6,) force and moment about the CoM that pull the HHEA toward its CoM and posture targets."""
+    g = gains
+    force = np.array([
+        g.fore_aft_n_m * (com_target_xy[0] - com[0]) - g.fore_aft_ns_m * com_velocity[0],
+        g.lateral_n_m * (com_target_xy[1] - com[1]) - g.lateral_ns_m * com_velocity[1],
+        mass_kg * gravity + g.height_n_m * (hip_height_target - hip_height) - g.height_ns_m * hip_vz,
+    ])
+    moment = np.array([
+        g.tilt_nm_rad * (trunk_target_rp[0] - trunk_rpy[0]) - g.tilt_nms_rad * trunk_rate[0],
+        g.tilt_nm_rad * (trunk_target_rp[1] - trunk_rpy[1]) - g.tilt_nms_rad * trunk_rate[1],
+        -g.yaw_nms_rad * trunk_rate[2],
+    ])
+    return np.concatenate([force, moment])

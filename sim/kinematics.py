@@ -1,0 +1,83 @@
+"""Whole-body kinematics of the HHEA from one batched link-state query per update.
+
+For a revolute joint j with world axis a_j through the point o_j, the Jacobian column of a point p
+on a link below j is ``a_j x (p - o_j)``. One ``getLinkStates`` call gives every link frame (whose
+origin is its parent joint) and every link's CoM, so all Jacobians, the CoM, its velocity and the
+gravity torques follow in numpy, without PyBullet's per-link ``calculateJacobian`` calls (and
+without their floating-base frame pitfalls).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.world import GRAVITY, World
+
+
+class Kinematics:
+    def __init__(self, world: World) -> None:
+        self.world = world
+        c, robot = world.client, world.robot
+        n = c.getNumJoints(robot)
+        self.n = n
+        self.axis_local = np.array([c.getJointInfo(robot, j)[13] for j in range(n)], dtype=float)
+        parent = [c.getJointInfo(robot, j)[16] for j in range(n)]
+        # ancestors[j]: joints whose motion moves link j (j itself and every joint above it)
+        self.ancestors = []
+        for j in range(n):
+            chain, k = [], j
+            while k >= 0:
+                chain.append(k)
+                k = parent[k]
+            self.ancestors.append(np.array(chain[::-1]))
+        # subtree mask: moves[j, i] is True where joint j moves link i (links indexed base = 0, link k = k + 1)
+        self.moves = np.zeros((n, n + 1), dtype=bool)
+        for link in range(n):
+            self.moves[self.ancestors[link], link + 1] = True
+        self.masses = world.masses
+        self.joint_origin = np.zeros((n, 3))
+        self.joint_axis = np.zeros((n, 3))
+        self.link_com = np.zeros((n + 1, 3))
+        self.link_vel = np.zeros((n + 1, 3))
+        self.link_rot = np.zeros((n + 1, 3, 3))
+
+    def update(self) -> None:
+        c, robot = self.world.client, self.world.robot
+        base_pos, base_orn = c.getBasePositionAndOrientation(robot)
+        base_lin, _ = c.getBaseVelocity(robot)
+        self.link_com[0] = base_pos
+        self.link_vel[0] = base_lin
+        self.link_rot[0] = np.array(c.getMatrixFromQuaternion(base_orn)).reshape(3, 3)
+        states = c.getLinkStates(robot, range(self.n), computeLinkVelocity=1)
+        for j, s in enumerate(states):
+            self.link_com[j + 1] = s[0]
+            self.link_vel[j + 1] = s[6]
+            self.joint_origin[j] = s[4]
+            rot = np.array(c.getMatrixFromQuaternion(s[5])).reshape(3, 3)
+            self.link_rot[j + 1] = rot
+            self.joint_axis[j] = rot @ self.axis_local[j]
+
+    @property
+    def com(self) -> np.ndarray:
+        return self.masses @ self.link_com / self.masses.sum()
+
+    @property
+    def com_velocity(self) -> np.ndarray:
+        return self.masses @ self.link_vel / self.masses.sum()
+
+    def point_jacobian(self, link: int, point: np.ndarray) -> np.ndarray:
+        """(3, n) Jacobian of a world point fixed to ``link`` (a joint index; -1 = trunk) w.r.t. the joints."""
+        jac = np.zeros((3, self.n))
+        if link < 0:
+            return jac
+        idx = self.ancestors[link]
+        jac[:, idx] = np.cross(self.joint_axis[idx], point - self.joint_origin[idx]).T
+        return jac
+
+    def gravity_torques(self) -> np.ndarray:
+        """Joint torques that hold every link against gravity (``-Q``, Q the generalised gravity force)."""
+        # Q_j = sum over links i moved by j of m_i (-g z) . (a_j x (c_i - o_j))
+        lever = self.link_com[None, :, :] - self.joint_origin[:, None, :]  # (n, n+1, 3)
+        moment_z = np.cross(self.joint_axis[:, None, :], lever)[..., 2]  # z component of a_j x r
+        q = -(GRAVITY * self.masses[None, :] * moment_z * self.moves).sum(axis=1)
+        return -q
