@@ -13,31 +13,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import nnls as _scipy_nnls
 
 
-def nnls(a: np.ndarray, b: np.ndarray, max_iter: int | None = None) -> np.ndarray:
-    """Lawson-Hanson non-negative least squares: argmin ||a x - b|| subject to x >= 0."""
-    m, n = a.shape
-    x = np.zeros(n)
-    passive = np.zeros(n, dtype=bool)
-    w = a.T @ (b - a @ x)
-    tol = 10 * np.finfo(float).eps * np.linalg.norm(a, 1) * max(m, n)
-    for _ in range(max_iter or 3 * n):
-        if passive.all() or np.max(np.where(passive, -np.inf, w)) <= tol:
-            break
-        passive[int(np.argmax(np.where(passive, -np.inf, w)))] = True
-        while True:
-            z = np.zeros(n)
-            z[passive] = np.linalg.lstsq(a[:, passive], b, rcond=None)[0]
-            if np.all(z[passive] > tol):
-                x = z
-                break
-            mask = passive & (z <= tol)
-            alpha = np.min(x[mask] / (x[mask] - z[mask]))
-            x = x + alpha * (z - x)
-            passive &= x > tol
-        w = a.T @ (b - a @ x)
-    return x
+def nnls(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """argmin ||a x - b|| subject to x >= 0 (SciPy's Lawson-Hanson active-set solver)."""
+    return _scipy_nnls(a, b, maxiter=10 * a.shape[1])[0]
 
 
 @dataclass(frozen=True)
@@ -76,16 +57,12 @@ def distribute(
     if k == 0:
         return np.zeros((0, 3)), float(np.linalg.norm(weights * wrench))
     edges = pyramid_edges(mu)
-    a = np.zeros((6, 4 * k))
-    base = np.zeros(6)
-    for c, contact in enumerate(contacts):
-        r = contact.point - com
-        for e in range(4):
-            a[:3, 4 * c + e] = edges[e]
-            a[3:, 4 * c + e] = np.cross(r, edges[e])
-        f0 = np.array([0.0, 0.0, min_normal_n])
-        base[:3] += f0
-        base[3:] += np.cross(r, f0)
+    r = np.array([c.point for c in contacts]) - com  # (k, 3)
+    a = np.empty((6, 4 * k))
+    a[:3] = np.tile(edges.T, k)
+    a[3:] = np.cross(np.repeat(r, 4, axis=0), np.tile(edges, (k, 1))).T
+    f0 = np.array([0.0, 0.0, min_normal_n])
+    base = np.concatenate([k * f0, np.cross(r, f0).sum(axis=0)])
     reg = np.repeat([np.sqrt(ct.cost) for ct in contacts], 4)
     lhs = np.vstack([weights[:, None] * a, np.diag(reg)])
     rhs = np.concatenate([weights * (wrench - base), np.zeros(4 * k)])

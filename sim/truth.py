@@ -91,12 +91,13 @@ def convex_hull_2d(points) -> np.ndarray:
         what exists: ``m = 0`` (no points), ``m = 1`` (all points equal) or ``m = 2`` (all
         points collinear: the two end points). Such polygons have zero area.
     """
-    pts = np.unique(_points(points, "points"), axis=0)  # sorted by x, then y
+    # Sorted unique points as plain tuples: for the handful of contacts this is the fast path.
+    pts = sorted(set(map(tuple, _points(points, "points").tolist())))  # by x, then y
     if len(pts) <= 2:
-        return pts
+        return np.array(pts, dtype=float).reshape(-1, 2)
 
-    def chain(seq: np.ndarray) -> list[np.ndarray]:
-        out: list[np.ndarray] = []
+    def chain(seq: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        out: list[tuple[float, float]] = []
         for p in seq:
             while len(out) >= 2 and _cross(out[-2], out[-1], p) <= 0.0:
                 out.pop()
@@ -104,7 +105,7 @@ def convex_hull_2d(points) -> np.ndarray:
         return out
 
     lower, upper = chain(pts), chain(pts[::-1])
-    return np.array(lower[:-1] + upper[:-1])
+    return np.array(lower[:-1] + upper[:-1], dtype=float)
 
 
 def support_polygon(contact_points_xy) -> np.ndarray:

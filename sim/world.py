@@ -11,7 +11,10 @@ holds it to the walking plane.
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +42,21 @@ GRAVITY = 9.81
 URDF_CACHE = Path(tempfile.gettempdir()) / "aider-exo-urdf"
 
 
+@contextlib.contextmanager
+def _c_stdout_to_devnull():
+    """PyBullet's C code prints ("argv[0]=") on connecting: keep it off our stdout (--json output)."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
+
+
 @dataclass(frozen=True)
 class StancePose:
     """An initial posture: where the feet and stick tips are, and how the trunk leans."""
@@ -58,7 +76,8 @@ class World:
         self.body: Body = build_body(cfg.model)
         self.dt = 1.0 / cfg.physics.rate_hz
         self.steps = 0
-        self.client = BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+        with _c_stdout_to_devnull():
+            self.client = BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
         c = self.client
         c.setAdditionalSearchPath(pybullet_data.getDataPath())
         c.setPhysicsEngineParameter(

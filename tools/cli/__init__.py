@@ -20,6 +20,7 @@ SUBCOMMANDS = {
     "protocol": "tools.cli.protocol",
     "buscheck": "tools.cli.buscheck",
     "bench": "tools.cli.bench",
+    "sim": "tools.cli.sim",
 }
 
 

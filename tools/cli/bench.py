@@ -10,6 +10,7 @@ from tools.cli.common import print_json
 #: benchmark name -> module under tools.bench with ``add_arguments(parser)`` and ``run(args) -> dict``
 BENCHMARKS = {
     "codec": "tools.bench.codec",
+    "sim": "tools.bench.sim",
 }
 
 

@@ -1,0 +1,500 @@
+"""A walk of the HHEA: the patient (sticks and arms), a scripted exoskeleton gait and the physics.
+
+The patient is a controller inside the plant, running at a human rate (``patient.control_hz``):
+
+1. before a stick leaves the ground it shifts the CoM into the support that remains (the feet, and
+   in the alternating gait the other stick) and waits until it is there;
+2. it places the stick(s) ahead of its own body: ``stick_ahead_m`` plus Gaussian noise beyond the
+   CoM (a reach relative to the trunk, not to the exoskeleton's feet);
+3. it leans: the CoM target moves toward the sticks at a comfortable speed, until it is a
+   comfortable distance behind them, or the stick load reaches what the patient's arms will bear.
+
+Balance throughout is a contact-force distribution over the loaded contacts
+(:mod:`sim.balance`). The arms apply their share (Jacobian-transpose torques) within the patient's
+strength; the exoskeleton's stance legs receive theirs as the torque feed-forward of their node
+commands. The exoskeleton (:class:`GaitDriver`, a scripted stand-in for the real controller)
+swings the rear leg along a lift-advance-descend ankle path to a fixed step length when its
+sensors say both sticks are loaded and both feet are down; the swing ends at foot contact.
+
+So the trunk's progress is the patient's and the step length is the exoskeleton's: a step that is
+too long leaves the CoM behind the front ankle when the rear foot lifts, and the sticks, which can
+only push, cannot hold it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from config.sim_schema import SimConfig
+from sim.actuation import Mode
+from sim.balance import Contact, WrenchGains, desired_wrench, distribute
+from sim.kinematics import Kinematics
+from sim.model import JOINT_ORDER, arm_ik, leg_ik
+from sim.sensors import Sensors, rpy_from_matrix
+from sim.world import GRAVITY, StancePose, World
+
+SIDES = ("l", "r")
+OTHER = {"l": "r", "r": "l"}
+
+
+class Phase(enum.Enum):
+    SETTLE = "settle"
+    SHIFT = "shift"  # patient moves the CoM into the support left when a stick lifts
+    STICKS = "sticks"  # patient moves stick(s)
+    LEAN = "lean"  # patient leans toward the sticks; the exoskeleton may start its swing
+    SWING = "swing"  # the exoskeleton swings a leg
+
+
+@dataclass(frozen=True)
+class WalkSettings:
+    """Behaviour of the patient and the scripted exoskeleton (fixed for a sweep)."""
+
+    step_length_m: float = 0.12
+    swing_time_s: float = 1.2
+    swing_clearance_m: float = 0.10
+    stick_move_time_s: float = 0.8
+    stick_lift_m: float = 0.06
+    unload_time_s: float = 0.3
+    lean_speed_m_s: float = 0.15
+    lean_behind_sticks_m: float = 0.24
+    stick_force_comfort_n: float = 260.0
+    swing_trigger_stick_n: float = 60.0
+    foot_contact_n: float = 60.0
+    shift_margin_m: float = 0.03
+    shift_timeout_s: float = 3.0
+    trunk_pitch_rad: float = 0.10
+    leg_reach_m: float = 0.85
+    settle_s: float = 0.6
+    integral_gain_n_ms: float = 2000.0
+    integral_limit_m_s: float = 0.05
+    min_contact_n: float = 8.0
+    hip_speed_m_s: float = 0.2
+    leg_ff_gain: float = 1.0
+
+
+@dataclass
+class StepRecord:
+    """One exoskeleton step (one swing), from the end of the previous swing to foot contact."""
+
+    index: int
+    leg: str
+    start_s: float
+    end_s: float = math.nan
+    stick_force_sum_n: float = 0.0  # integral pieces: mean of (left + right) / 2 per tick
+    arm_torque_sum_nm: float = 0.0
+    samples: int = 0
+    min_margin_m: float = math.inf
+    landed: bool = False
+
+    @property
+    def mean_stick_force_n(self) -> float:
+        return self.stick_force_sum_n / self.samples if self.samples else math.nan
+
+    @property
+    def mean_arm_torque_nm(self) -> float:
+        return self.arm_torque_sum_nm / self.samples if self.samples else math.nan
+
+
+@dataclass
+class WalkResult:
+    mode: str
+    step_length_m: float
+    seed: int
+    steps: list[StepRecord] = field(default_factory=list)
+    fell: bool = False
+    fall_reason: str | None = None
+    fall_phase: str | None = None
+    fall_step: int | None = None
+    fall_margin_m: float | None = None
+    duration_s: float = 0.0
+
+    @property
+    def steps_completed(self) -> int:
+        return sum(1 for s in self.steps if s.landed)
+
+    @property
+    def cycles_completed(self) -> int:
+        return self.steps_completed // 2
+
+
+class Walker:
+    """Runs one walk; owns nothing but references (the world is closed by the caller)."""
+
+    def __init__(self, world: World, cfg: SimConfig, settings: WalkSettings, rng: np.random.Generator) -> None:
+        self.world, self.cfg, self.s, self.rng = world, cfg, settings, rng
+        self.kin = Kinematics(world)
+        self.sensors = Sensors(world, cfg.sensors, rng)
+        self.body = world.body
+        self.gains = WrenchGains()
+        self.ticks_per_control = cfg.physics.rate_hz // cfg.patient.control_hz
+        self.dt_control = 1.0 / cfg.patient.control_hz
+        self.together = cfg.patient.stick_mode == "together" or cfg.mode == "sagittal"
+        self.ankle_idx = {s: world.joint_index[f"ankle_{s}"] for s in SIDES}
+        self.forearm_idx = {s: world.joint_index[f"elbow_{s}"] for s in SIDES}
+        self.arm_joints = {s: [world.joint_index[f"{j}_{s}"] for j in ("shoulder_flexion", "shoulder_abduction", "elbow")] for s in SIDES}
+        self.leg_joints = {s: [world.joint_index[f"hip_{s}"], world.joint_index[f"knee_{s}"]] for s in SIDES}
+        # State of the gait.
+        self.phase = Phase.SETTLE
+        self.phase_t = 0.0
+        self.t = 0.0
+        self.com_target = np.zeros(2)
+        self.planted = {"l": True, "r": True}  # stick tips on the ground and loaded
+        self.unloading: dict[str, float] = {}
+        self.tip_path: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}
+        self.stick_queue: list[str] = []
+        self.swing_leg: str | None = None
+        self.swing_start = np.zeros(2)
+        self.swing_goal = np.zeros(2)
+        self.next_swing = "r"
+        self.stance_feet = {"l": True, "r": True}
+        self.lean_goal_x = 0.0
+        self.steps: list[StepRecord] = []
+        self.margin = math.inf
+        self.integral = np.zeros(2)
+        self.residual = 0.0
+        self.last_reading = None
+
+    # -- geometry helpers ----------------------------------------------------------------------
+
+    def ankle_xy(self, side: str) -> np.ndarray:
+        return self.kin.joint_origin[self.ankle_idx[side]][:2].copy()
+
+    def tip_point(self, side: str) -> np.ndarray:
+        origin, rot = self.world.link_frame(f"forearm_{side}")
+        b = self.body
+        tip = origin - rot[:, 2] * (b.forearm_m + b.grip_m + b.stick_m)
+        return tip - np.array([0.0, 0.0, self.cfg.model.sticks.tip_radius_m])
+
+    def support_points(self, feet: list[str], tips: list[str]) -> np.ndarray:
+        half = self.cfg.model.foot.half_width_m
+        pts = []
+        for s in feet:
+            a = self.ankle_xy(s)
+            pts += [a + [0, half], a - [0, half]]
+        pts += [self.tip_point(s)[:2] for s in tips]
+        return np.array(pts)
+
+    # -- the patient ---------------------------------------------------------------------------
+
+    def _set_phase(self, phase: Phase) -> None:
+        self.phase, self.phase_t = phase, 0.0
+
+    def _start_stick_moves(self) -> None:
+        self.stick_queue = list(SIDES) if self.together else sorted(SIDES, key=lambda s: self.tip_point(s)[0])
+        self._set_phase(Phase.SHIFT)
+
+    def _shift_target(self) -> np.ndarray:
+        """Where the CoM must be before the next stick(s) lift: inside the support that remains."""
+        lifting = self.stick_queue[:2] if self.together else self.stick_queue[:1]
+        remaining_tips = [s for s in SIDES if s not in lifting and self.planted[s]]
+        feet = [s for s in SIDES if self.stance_feet[s]]
+        ankles = np.array([self.ankle_xy(s) for s in feet])
+        lo, hi = ankles[:, 0].min(), ankles[:, 0].max()
+        x = float(self.kin.com[0])
+        m = self.s.shift_margin_m
+        if remaining_tips:  # alternating: the support reaches toward the planted tip
+            tip = self.tip_point(remaining_tips[0])[:2]
+            target = np.array([np.clip(x, lo + m, (hi + tip[0]) / 2), (ankles[:, 1].mean() + tip[1]) / 3])
+            return target
+        return np.array([np.clip(x, lo + m, max(hi - m, lo + m)), 0.0])
+
+    def patient_update(self, reading) -> None:
+        s, dt = self.s, self.dt_control
+        self.phase_t += dt
+        com = self.kin.com
+        if self.phase is Phase.SETTLE:
+            if self.phase_t >= s.settle_s:
+                self._start_stick_moves()
+            return
+        if self.phase is Phase.SHIFT:
+            target = self._shift_target()
+            self.com_target += np.clip(target - self.com_target, -s.lean_speed_m_s * dt, s.lean_speed_m_s * dt)
+            close = np.linalg.norm(com[:2] - target) < 0.02
+            if (close and self.phase_t > 0.2) or self.phase_t > s.shift_timeout_s:
+                lifting = self.stick_queue[:2] if self.together else self.stick_queue[:1]
+                for side in lifting:
+                    self.unloading[side] = 0.0
+                self._set_phase(Phase.STICKS)
+            return
+        if self.phase is Phase.STICKS:
+            for side in list(self.unloading):
+                self.unloading[side] += dt
+                if self.unloading[side] >= s.unload_time_s:
+                    del self.unloading[side]
+                    self.planted[side] = False
+                    start = self.tip_point(side)
+                    sign = 1.0 if side == "l" else -1.0
+                    goal = np.array([
+                        com[0] + self.cfg.patient.stick_ahead_m + self.rng.normal(0.0, self.cfg.patient.stick_noise_m),
+                        sign * self.cfg.patient.stick_half_width_m,
+                        0.0,
+                    ])
+                    self.tip_path[side] = (start, goal, 0.0)
+            for side, (start, goal, tau) in list(self.tip_path.items()):
+                tau += dt / s.stick_move_time_s
+                if tau >= 1.0 and reading.stick_force_n[SIDES.index(side)] > 20.0:
+                    del self.tip_path[side]
+                    self.planted[side] = True
+                    self.stick_queue.remove(side)
+                else:
+                    self.tip_path[side] = (start, goal, min(tau, 1.3))
+            if not self.unloading and not self.tip_path:
+                if self.stick_queue:
+                    self._set_phase(Phase.SHIFT)
+                else:
+                    tips_x = min(self.tip_point(side)[0] for side in SIDES)
+                    self.lean_goal_x = tips_x - s.lean_behind_sticks_m
+                    self._set_phase(Phase.LEAN)
+            return
+        if self.phase in (Phase.LEAN, Phase.SWING):
+            sticks = reading.stick_force_n
+            step = s.lean_speed_m_s * dt
+            comfortable = max(sticks) < s.stick_force_comfort_n
+            if self.com_target[0] < self.lean_goal_x and comfortable:
+                self.com_target[0] = min(self.com_target[0] + step, self.lean_goal_x)
+            self.com_target[1] += np.clip(0.0 - self.com_target[1], -step, step)
+
+    # -- the exoskeleton's scripted gait -------------------------------------------------------
+
+    def exo_update(self, reading) -> None:
+        s = self.s
+        plantar = reading.heel_force_n + reading.toe_force_n
+        if self.phase is Phase.LEAN and self.swing_leg is None:
+            loaded = all(reading.stick_force_n > s.swing_trigger_stick_n) and all(plantar > s.foot_contact_n)
+            if loaded and self.phase_t > 0.3:
+                leg = self.next_swing
+                stance = OTHER[leg]
+                self.swing_leg = leg
+                self.stance_feet[leg] = False
+                self.swing_start = self.ankle_xy(leg)
+                self.swing_goal = np.array([self.ankle_xy(stance)[0] + s.step_length_m, self.swing_start[1]])
+                self.steps.append(StepRecord(index=len(self.steps), leg=leg, start_s=self.t))
+                self._set_phase(Phase.SWING)
+            return
+        if self.phase is Phase.SWING and self.swing_leg is not None:
+            leg = self.swing_leg
+            down = plantar[SIDES.index(leg)] > s.foot_contact_n
+            if (self.phase_t > 0.75 * s.swing_time_s and down) or self.phase_t > s.swing_time_s + 1.0:
+                record = self.steps[-1]
+                record.end_s, record.landed = self.t, bool(down)
+                self.stance_feet[leg] = True
+                self.swing_leg = None
+                self.next_swing = OTHER[leg]
+                self._start_stick_moves()
+
+    def swing_target(self) -> np.ndarray:
+        """Ankle (x, z) of the swing leg: lift, advance, descend (minimum-jerk blends)."""
+        s = self.s
+        u = min(self.phase_t / s.swing_time_s, 1.0)
+
+        def blend(a: float) -> float:
+            a = min(max(a, 0.0), 1.0)
+            return a * a * a * (10 - 15 * a + 6 * a * a)
+
+        x = self.swing_start[0] + (self.swing_goal[0] - self.swing_start[0]) * blend((u - 0.15) / 0.7)
+        lift = blend(u / 0.3) - blend((u - 0.7) / 0.3)
+        z = self.body.ankle_height_m + s.swing_clearance_m * lift + (0.0 if u < 1.0 else -0.01)
+        return np.array([x, z])
+
+    # -- joint commands ------------------------------------------------------------------------
+
+    def control(self, reading) -> None:
+        w, kin, s = self.world, self.kin, self.s
+        com = kin.com
+        trunk_origin, trunk_rot = w.link_frame("trunk")
+        rpy = rpy_from_matrix(trunk_rot)
+        omega = np.array(w.client.getBaseVelocity(w.robot)[1])
+        base_v = np.array(w.client.getBaseVelocity(w.robot)[0])
+        feet = [side for side in SIDES if self.stance_feet[side]]
+        tips = [side for side in SIDES if self.planted[side]]
+        # Where the stance legs carry the hip: the patient's lean sets x (rate-limited), height is
+        # the stance height as far as every stance foot can reach.
+        dt = self.dt_control
+        want_x = trunk_origin[0] + (self.com_target[0] - com[0])
+        self.hip_goal[0] += np.clip(want_x - self.hip_goal[0], -s.hip_speed_m_s * dt, s.hip_speed_m_s * dt)
+        reach = min(
+            math.sqrt(max(s.leg_reach_m**2 - (self.hip_goal[0] - self.ankle_xy(f)[0]) ** 2, 0.05)) for f in feet
+        )
+        z_goal = min(self.hip_height_nominal, self.body.ankle_height_m + reach)
+        self.hip_goal[1] += np.clip(z_goal - self.hip_goal[1], -0.1 * dt, 0.1 * dt)
+        hip_target = self.hip_goal[1]
+        self.pitch_goal += float(np.clip(s.trunk_pitch_rad - self.pitch_goal, -0.2 * dt, 0.2 * dt))
+        # Stance feet rest on the floor: the body above the ankles is what the contacts must carry.
+        foot_links = {f: w.link_index[f"foot_{f}"] for f in feet}
+        carried = w.total_mass - sum(w.masses[i + 1] for i in foot_links.values())
+        error = self.com_target - com[:2]
+        self.integral = np.clip(self.integral + error * self.dt_control, -s.integral_limit_m_s, s.integral_limit_m_s)
+        wrench = desired_wrench(
+            carried, com, kin.com_velocity, self.com_target, trunk_origin[2], hip_target, base_v[2],
+            rpy, trunk_rot.T @ omega, np.array([0.0, s.trunk_pitch_rad]), self.gains,
+        )
+        wrench[:2] += s.integral_gain_n_ms * self.integral
+        contacts = [Contact(f"foot_{f}", self.ankle_idx[f], kin.joint_origin[self.ankle_idx[f]].copy(), 1e-4) for f in feet]
+        for t in tips:
+            cost = 4e-4 * (1.0 + 400.0 * (self.unloading[t] / s.unload_time_s) ** 2) if t in self.unloading else 4e-4
+            contacts.append(Contact(f"tip_{t}", self.forearm_idx[t], self.tip_point(t), cost))
+        # A stance foot's spring acts on its shank with minus the ankle torque about the ankle axis.
+        ankle = self.cfg.model.joints.ankle
+        spring = np.zeros(3)
+        for f in feet:
+            j = self.ankle_idx[f]
+            spring -= -ankle.stiffness_nm_rad * (w.q[j] - ankle.rest_rad) * kin.joint_axis[j]
+        forces, self.residual = distribute(
+            wrench, com, contacts, mu=0.5, min_normal_n=s.min_contact_n,
+            weights=np.array([1.0, 1.0, 1.0, 2.0, 2.0, 0.5]), known_moment=spring,
+        )
+        tau = kin.gravity_torques()
+        for i in foot_links.values():  # the floor holds a stance foot up, not the leg
+            tau -= kin.point_jacobian(i, kin.link_com[i + 1]).T @ np.array([0.0, 0.0, w.masses[i + 1] * GRAVITY])
+        for contact, f in zip(contacts, forces):
+            tau -= kin.point_jacobian(contact.link, contact.point).T @ f
+        # Exoskeleton: node commands (mode, position, velocity ff, torque ff).
+        pitch = rpy[1]
+        hip_xz_target = self.hip_goal
+        for side in SIDES:
+            hip_i, knee_i = self.leg_joints[side]
+            n_hip, n_knee = w.exo.index(f"hip_{side}"), w.exo.index(f"knee_{side}")
+            if side == self.swing_leg:
+                target = self.swing_target()
+                rel = target - np.array([trunk_origin[0], trunk_origin[2]])
+                try:
+                    h_world, knee = leg_ik(rel, self.body.thigh_m, self.body.shank_m)
+                except ValueError:
+                    h_world, knee = w.q[hip_i] - pitch, w.q[knee_i]
+                g = kin.gravity_torques()
+                hip_cmd = float(np.clip(h_world + pitch, w.exo.lower[n_hip] + 1e-3, w.exo.upper[n_hip] - 1e-3))
+                knee_cmd = float(np.clip(knee, w.exo.lower[n_knee] + 1e-3, w.exo.upper[n_knee] - 1e-3))
+                w.exo.command(n_hip, Mode.TRACK, hip_cmd, 0.0, float(np.clip(g[hip_i], -90, 90)))
+                w.exo.command(n_knee, Mode.TRACK, knee_cmd, 0.0, float(np.clip(g[knee_i], -90, 90)))
+            else:
+                # Stance: the legs yield to the patient's lean (admittance): they carry the hip to
+                # where the patient's CoM target puts it, at the stance height and trunk pitch, and
+                # feed forward their share of the contact forces.
+                rel = np.array([hip_xz_target[0] - self.ankle_xy(side)[0], hip_xz_target[1] - self.body.ankle_height_m])
+                try:
+                    h_world, knee = leg_ik(-rel, self.body.thigh_m, self.body.shank_m)
+                    targets = (h_world + self.pitch_goal, knee)
+                except ValueError:
+                    targets = (w.q[hip_i], w.q[knee_i])
+                for n, j, target in ((n_hip, hip_i, targets[0]), (n_knee, knee_i, targets[1])):
+                    q_cmd = float(np.clip(target, w.exo.lower[n] + 1e-3, w.exo.upper[n] - 1e-3))
+                    w.exo.command(n, Mode.TRACK, q_cmd, 0.0, float(np.clip(s.leg_ff_gain * tau[j], -100.0, 100.0)))
+        # Patient: planted arms push (torque feed-forward), moving arms follow their tip path.
+        g = kin.gravity_torques()
+        for side in SIDES:
+            joints = self.arm_joints[side]
+            names = [JOINT_ORDER[j] for j in joints]
+            if side in self.tip_path:
+                start, goal, u = self.tip_path[side]
+                a = min(u, 1.0)
+                blend = a * a * a * (10 - 15 * a + 6 * a * a)
+                point = start + (goal - start) * blend
+                lift = 4 * min(u, 1.0) * (1 - min(u, 1.0)) * s.stick_lift_m
+                point = point + np.array([0.0, 0.0, lift - (0.02 if u >= 1.0 else 0.0) + self.cfg.model.sticks.tip_radius_m])
+                sign = 1.0 if side == "l" else -1.0
+                shoulder = trunk_origin + trunk_rot @ np.array([0.0, sign * self.body.shoulder_half_width_m, self.body.shoulder_above_hip_m])
+                try:
+                    q_arm = arm_ik(trunk_rot.T @ (point - shoulder), *self.body.arm_reach_m, side)
+                except ValueError:
+                    q_arm = tuple(w.q[j] for j in joints)
+                for name, j, qa in zip(names, joints, q_arm):
+                    n = w.arms.index(name)
+                    w.arms.command(n, Mode.TRACK, float(np.clip(qa, w.arms.lower[n] + 1e-3, w.arms.upper[n] - 1e-3)), 0.0,
+                                   float(np.clip(g[j], -w.arms.rated[n], w.arms.rated[n])))
+            else:
+                for name, j in zip(names, joints):
+                    n = w.arms.index(name)
+                    q_now = float(np.clip(w.q[j], w.arms.lower[n] + 1e-3, w.arms.upper[n] - 1e-3))
+                    w.arms.command(n, Mode.TRACK, q_now, 0.0, float(np.clip(tau[j], -w.arms.rated[n], w.arms.rated[n])))
+
+    # -- the loop ------------------------------------------------------------------------------
+
+    def _support_margin(self) -> float:
+        from sim.truth import pivot_polygon, stability_margin
+
+        feet = [s for s in SIDES if self.stance_feet[s]]
+        tips = [s for s in SIDES if self.planted[s]]
+        ankles = np.array([self.ankle_xy(s) for s in feet]).reshape(-1, 2)
+        tip_xy = np.array([self.tip_point(s)[:2] for s in tips]).reshape(-1, 2)
+        poly = pivot_polygon(ankles, tip_xy, ankle_halfwidth=self.cfg.model.foot.half_width_m)
+        return float(stability_margin(poly, self.kin.com[:2]))
+
+    def run(self, max_steps: int, max_time_s: float = 120.0, on_tick=None) -> WalkResult:
+        """Walk until ``max_steps`` steps have landed, a fall, or ``max_time_s``.
+
+        ``on_tick(world, t)`` is called after every control tick (recording, progress).
+        """
+        w, s = self.world, self.s
+        self.kin.update()
+        self.com_target = self.kin.com[:2].copy()
+        origin = w.link_frame("trunk")[0]
+        self.hip_goal = np.array([origin[0], origin[2]])
+        self.pitch_goal = float(rpy_from_matrix(w.link_frame("trunk")[1])[1])
+        self.hip_height_nominal = float(origin[2])
+        fall = self.cfg.fall
+        result = WalkResult(mode=self.cfg.mode, step_length_m=s.step_length_m, seed=-1)
+        allowed = {"foot_l", "foot_r", "forearm_l", "forearm_r"}
+        while self.t < max_time_s:
+            self.kin.update()
+            reading = self.sensors.read()
+            self.patient_update(reading)
+            self.exo_update(reading)
+            self.control(reading)
+            for _ in range(self.ticks_per_control):
+                w.step()
+            self.t += self.dt_control
+            if on_tick is not None:
+                on_tick(w, self.t)
+            self.kin.update()
+            margin = self._support_margin()
+            if self.steps and not self.steps[-1].landed:
+                rec = self.steps[-1]
+                rec.stick_force_sum_n += float(np.mean(reading.stick_force_n))
+                rec.arm_torque_sum_nm += float(np.sum(np.abs(w.arms.applied)))
+                rec.samples += 1
+                rec.min_margin_m = min(rec.min_margin_m, margin)
+            rpy = rpy_from_matrix(w.link_frame("trunk")[1])
+            hip_z = w.link_frame("trunk")[0][2]
+            touching = w.touching_links() - allowed
+            reason = None
+            if touching:
+                reason = f"{sorted(touching)[0]} touched the ground"
+            elif max(abs(rpy[0]), abs(rpy[1])) > fall.tilt_limit_rad:
+                reason = f"trunk tilt {max(abs(rpy[0]), abs(rpy[1])):.2f} rad beyond {fall.tilt_limit_rad}"
+            elif hip_z < fall.min_hip_height_m:
+                reason = f"hip height {hip_z:.2f} m below {fall.min_hip_height_m}"
+            if reason:
+                result.fell, result.fall_reason = True, reason
+                result.fall_phase = self.phase.value
+                result.fall_step = len(self.steps)
+                result.fall_margin_m = round(margin, 4)
+                break
+            if sum(1 for r in self.steps if r.landed) >= max_steps:
+                break
+        result.steps = self.steps
+        result.duration_s = self.t
+        return result
+
+
+def initial_pose(cfg: SimConfig) -> StancePose:
+    ahead = cfg.patient.stick_ahead_m
+    w = cfg.patient.stick_half_width_m
+    return StancePose(foot_x_m=(0.06, -0.06), tip_xy_m=((ahead, w), (ahead, -w)), trunk_pitch_rad=0.10, hip_x_m=0.05, knee_rad=0.08)
+
+
+def walk(cfg: SimConfig, settings: WalkSettings, seed: int, max_steps: int, *, gui: bool = False, on_tick=None) -> WalkResult:
+    """One episode in a fresh world (deterministic for a seed)."""
+    rng = np.random.default_rng(seed)
+    with World(cfg, gui=gui) as world:
+        world.place(initial_pose(cfg))
+        walker = Walker(world, cfg, settings, rng)
+        result = walker.run(max_steps, on_tick=on_tick)
+    result.seed = seed
+    return result
+
+

@@ -1,0 +1,99 @@
+"""Simulation speed: the full HHEA (joint loops, sensors, patient and exoskeleton control) against
+the bare physics step of the same model, measured in the same run, in both model modes.
+
+The HHEA stands balanced on its feet and sticks for the whole run, so every 20 ms tick does the
+work of a walk (whole-body kinematics, sensors, the contact-force distribution, joint commands)
+without a fall cutting the run short. PyBullet's ``stepSimulation`` is timed inside the same loop,
+so "bare physics" and "everything else" come from one run on one world.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import platform
+from typing import Any
+
+import numpy as np
+
+from config import ConfigError, default_config_path, load_config
+from protocol.clock import MonotonicClock
+from sim.walk import Walker, WalkSettings, initial_pose
+from sim.world import World
+
+GOAL_REALTIME = 10.0
+GOAL_OVERHEAD_PERCENT = 30.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", help="YAML configuration (default: the packaged one)")
+    parser.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per mode (default 10)")
+
+
+def _run_mode(cfg: Any, mode: str, seconds: float) -> dict[str, Any]:
+    clock = MonotonicClock()
+    sim_cfg = dataclasses.replace(cfg, mode=mode)
+    with World(sim_cfg) as world:
+        world.place(initial_pose(sim_cfg))
+        walker = Walker(world, sim_cfg, WalkSettings(settle_s=seconds + 1.0), np.random.default_rng(0))
+        step = world.client.stepSimulation
+        physics_ns = 0
+
+        def timed_step() -> None:
+            nonlocal physics_ns
+            start = clock.now_ns()
+            step()
+            physics_ns += clock.now_ns() - start
+
+        world.client.stepSimulation = timed_step  # an instance attribute shadows BulletClient's lookup
+        start = clock.now_ns()
+        result = walker.run(max_steps=1, max_time_s=seconds)
+        total_ns = clock.now_ns() - start
+    simulated = result.duration_s
+    physics_s, total_s = physics_ns / 1e9, total_ns / 1e9
+    return {
+        "mode": mode,
+        "simulated_s": round(simulated, 2),
+        "fell": result.fell,
+        "physics_steps": int(round(simulated * sim_cfg.physics.rate_hz)),
+        "wall_s": round(total_s, 3),
+        "realtime_factor_full": round(simulated / total_s, 2),
+        "realtime_factor_bare_physics": round(simulated / physics_s, 2),
+        "overhead_percent": round(100.0 * (total_s - physics_s) / physics_s, 1),
+        "us_per_tick_full": round(total_ns / 1e3 / (simulated * 50), 1),
+        "us_per_tick_physics": round(physics_ns / 1e3 / (simulated * 50), 1),
+    }
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    if not args.seconds > 0:
+        raise ConfigError("--seconds must be positive")
+    cfg = load_config(args.config or default_config_path())
+    if cfg.sim is None:
+        raise ConfigError("sim: section required by the simulation benchmark", key="sim")
+    modes = [_run_mode(cfg.sim, mode, args.seconds) for mode in ("full3d", "sagittal")]
+    return {
+        "benchmark": "sim",
+        "physics_rate_hz": cfg.sim.physics.rate_hz,
+        "control_hz": cfg.sim.patient.control_hz,
+        "modes": modes,
+        "goals": {"realtime_factor_min": GOAL_REALTIME, "overhead_percent_max": GOAL_OVERHEAD_PERCENT},
+        "machine": {"python": platform.python_version(), "cpu_count": os.cpu_count(), "processor": platform.processor() or platform.machine()},
+    }
+
+
+def format_text(r: dict[str, Any]) -> str:
+    lines = [
+        f"simulation benchmark: physics {r['physics_rate_hz']} Hz, control {r['control_hz']} Hz, one core",
+        f"{'mode':<10}{'sim s':>7}{'x real time':>13}{'bare physics':>14}{'overhead':>10}{'us/tick':>9}",
+    ]
+    for m in r["modes"]:
+        lines.append(
+            f"{m['mode']:<10}{m['simulated_s']:>7.1f}{m['realtime_factor_full']:>12.1f}x{m['realtime_factor_bare_physics']:>13.1f}x"
+            f"{m['overhead_percent']:>9.0f}%{m['us_per_tick_full']:>9.0f}"
+        )
+    g = r["goals"]
+    lines.append(f"goals: at least {g['realtime_factor_min']:.0f}x real time; sensors, patient and interface at most "
+                 f"{g['overhead_percent_max']:.0f} % on top of the bare physics")
+    return "\n".join(lines) + "\n"
