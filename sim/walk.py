@@ -66,7 +66,6 @@ class WalkSettings:
     swing_trigger_stick_n: float = 60.0
     foot_contact_n: float = 60.0
     shift_margin_m: float = 0.03
-    shift_timeout_s: float = 3.0
     trunk_pitch_rad: float = 0.10
     leg_reach_m: float = 0.85
     settle_s: float = 0.6
@@ -214,8 +213,10 @@ class Walker:
         if self.phase is Phase.SHIFT:
             target = self._shift_target()
             self.com_target += np.clip(target - self.com_target, -s.lean_speed_m_s * dt, s.lean_speed_m_s * dt)
-            close = np.linalg.norm(com[:2] - target) < 0.02
-            if (close and self.phase_t > 0.2) or self.phase_t > s.shift_timeout_s:
+            # The patient lifts a stick only once the CoM is where the remaining support holds it;
+            # a patient who cannot get there waits (the walk stalls rather than falls).
+            close = np.linalg.norm(com[:2] - target) < 0.02 and np.linalg.norm(self.kin.com_velocity[:2]) < 0.05
+            if close and self.phase_t > 0.2:
                 lifting = self.stick_queue[:2] if self.together else self.stick_queue[:1]
                 for side in lifting:
                     self.unloading[side] = 0.0
