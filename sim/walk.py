@@ -66,6 +66,7 @@ class WalkSettings:
     swing_trigger_stick_n: float = 60.0
     foot_contact_n: float = 60.0
     shift_margin_m: float = 0.03
+    shift_speed_m_s: float = 0.05
     trunk_pitch_rad: float = 0.10
     leg_reach_m: float = 0.85
     settle_s: float = 0.6
@@ -73,6 +74,7 @@ class WalkSettings:
     integral_limit_m_s: float = 0.05
     min_contact_n: float = 8.0
     hip_speed_m_s: float = 0.2
+    hip_correction_m: float = 0.01
     leg_ff_gain: float = 1.0
 
 
@@ -212,7 +214,7 @@ class Walker:
             return
         if self.phase is Phase.SHIFT:
             target = self._shift_target()
-            self.com_target += np.clip(target - self.com_target, -s.lean_speed_m_s * dt, s.lean_speed_m_s * dt)
+            self.com_target += np.clip(target - self.com_target, -s.shift_speed_m_s * dt, s.shift_speed_m_s * dt)
             # The patient lifts a stick only once the CoM is where the remaining support holds it;
             # a patient who cannot get there waits (the walk stalls rather than falls).
             close = np.linalg.norm(com[:2] - target) < 0.02 and np.linalg.norm(self.kin.com_velocity[:2]) < 0.05
@@ -248,7 +250,7 @@ class Walker:
                 if self.stick_queue:
                     self._set_phase(Phase.SHIFT)
                 else:
-                    tips_x = min(self.tip_point(side)[0] for side in SIDES)
+                    tips_x = float(np.mean([self.tip_point(side)[0] for side in SIDES]))
                     self.lean_goal_x = tips_x - s.lean_behind_sticks_m
                     self._set_phase(Phase.LEAN)
             return
@@ -356,7 +358,8 @@ class Walker:
             tau -= kin.point_jacobian(contact.link, contact.point).T @ f
         # Exoskeleton: node commands (mode, position, velocity ff, torque ff).
         pitch = rpy[1]
-        hip_xz_target = self.hip_goal
+        hip_now = np.array([trunk_origin[0], trunk_origin[2]])
+        step_xz = np.clip(self.hip_goal - hip_now, -s.hip_correction_m, s.hip_correction_m)
         for side in SIDES:
             hip_i, knee_i = self.leg_joints[side]
             n_hip, n_knee = w.exo.index(f"hip_{side}"), w.exo.index(f"knee_{side}")
@@ -376,12 +379,9 @@ class Walker:
                 # Stance: the legs yield to the patient's lean (admittance): they carry the hip to
                 # where the patient's CoM target puts it, at the stance height and trunk pitch, and
                 # feed forward their share of the contact forces.
-                rel = np.array([hip_xz_target[0] - self.ankle_xy(side)[0], hip_xz_target[1] - self.body.ankle_height_m])
-                try:
-                    h_world, knee = leg_ik(-rel, self.body.thigh_m, self.body.shank_m)
-                    targets = (h_world + self.pitch_goal, knee)
-                except ValueError:
-                    targets = (w.q[hip_i], w.q[knee_i])
+                # Differential IK from the measured posture: both legs move the hip by the same small
+                # step, so their targets agree with each other however the feet really lie.
+                targets = self._stance_targets(hip_i, knee_i, step_xz, pitch)
                 for n, j, target in ((n_hip, hip_i, targets[0]), (n_knee, knee_i, targets[1])):
                     q_cmd = float(np.clip(target, w.exo.lower[n] + 1e-3, w.exo.upper[n] - 1e-3))
                     w.exo.command(n, Mode.TRACK, q_cmd, 0.0, float(np.clip(s.leg_ff_gain * tau[j], -100.0, 100.0)))
@@ -412,6 +412,21 @@ class Walker:
                     n = w.arms.index(name)
                     q_now = float(np.clip(w.q[j], w.arms.lower[n] + 1e-3, w.arms.upper[n] - 1e-3))
                     w.arms.command(n, Mode.TRACK, q_now, 0.0, float(np.clip(tau[j], -w.arms.rated[n], w.arms.rated[n])))
+
+    def _stance_targets(self, hip_i: int, knee_i: int, step_xz: np.ndarray, pitch: float) -> tuple[float, float]:
+        """Hip and knee targets that move the hip by ``step_xz`` over a fixed ankle, trunk at its goal pitch."""
+        w, b = self.world, self.body
+        h_w, k = w.q[hip_i] - pitch, w.q[knee_i]  # thigh angle in the world (from vertical, forward +)
+        # hip - ankle = -(l1 (sin h, -cos h) + l2 (sin(h-k), -cos(h-k))); its Jacobian in (h, k):
+        jac = -np.array([
+            [b.thigh_m * math.cos(h_w) + b.shank_m * math.cos(h_w - k), -b.shank_m * math.cos(h_w - k)],
+            [b.thigh_m * math.sin(h_w) + b.shank_m * math.sin(h_w - k), -b.shank_m * math.sin(h_w - k)],
+        ])
+        if abs(np.linalg.det(jac)) < 1e-4:  # straight knee: only the thigh angle can move the hip
+            dh, dk = 0.0, 0.0
+        else:
+            dh, dk = np.linalg.solve(jac, step_xz)
+        return h_w + dh + self.pitch_goal, k + dk
 
     # -- the loop ------------------------------------------------------------------------------
 
