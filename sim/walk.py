@@ -70,7 +70,7 @@ class WalkSettings:
     trunk_pitch_rad: float = 0.10
     leg_reach_m: float = 0.85
     settle_s: float = 0.6
-    integral_gain_n_ms: float = 2000.0
+    integral_gain_n_ms: float = 0.0  # an integral term winds up during leans and pull-backs (docs/SIM.md)
     integral_limit_m_s: float = 0.05
     min_contact_n: float = 8.0
     hip_speed_m_s: float = 0.2
