@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from .loader import fail, field_spec
+from .controller_schema import ControllerConfig
 from .sim_schema import SimConfig
 
 __all__ = ["SCHEMA_VERSION", "BusConfig", "Config", "ProtocolConfig"]
@@ -133,6 +134,9 @@ class Config:
     )
     bus: BusConfig = field_spec(doc="CAN bus settings.")
     protocol: ProtocolConfig = field_spec(doc="End-to-end protection receiver settings.")
+    controller: ControllerConfig | None = field_spec(
+        doc="The main controller's algorithms (legs, swing DMP, step bounds, learning).", default=None
+    )
     sim: SimConfig | None = field_spec(
         doc="The simulated HHEA (model, physics, patient, sensors); absent on the robot.", default=None
     )

@@ -19,8 +19,6 @@ import numpy as np
 
 from config import ConfigError, default_config_path, load_config
 from protocol.clock import MonotonicClock
-from sim.walk import Walker, WalkSettings, initial_pose
-from sim.world import World
 
 GOAL_REALTIME = 10.0
 GOAL_OVERHEAD_PERCENT = 30.0
@@ -32,6 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run_mode(cfg: Any, mode: str, seconds: float) -> dict[str, Any]:
+    from sim.walk import Walker, WalkSettings, initial_pose  # PyBullet loads only when this benchmark runs
+    from sim.world import World
+
     clock = MonotonicClock()
     sim_cfg = dataclasses.replace(cfg, mode=mode)
     with World(sim_cfg) as world:

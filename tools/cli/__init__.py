@@ -21,6 +21,7 @@ SUBCOMMANDS = {
     "buscheck": "tools.cli.buscheck",
     "bench": "tools.cli.bench",
     "sim": "tools.cli.sim",
+    "dmp": "tools.cli.dmp",
 }
 
 

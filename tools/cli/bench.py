@@ -11,6 +11,7 @@ from tools.cli.common import print_json
 BENCHMARKS = {
     "codec": "tools.bench.codec",
     "sim": "tools.bench.sim",
+    "algorithms": "tools.bench.algorithms",
 }
 
 

@@ -1,0 +1,94 @@
+"""Schema of the ``controller`` section: leg geometry, the DMP swing, step-length bounds, learning."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from .loader import fail, field_spec
+
+
+@dataclass(frozen=True, kw_only=True)
+class LegConfig:
+    """The exoskeleton leg as the controller knows it (from the exoskeleton's drawings, not the simulation)."""
+
+    thigh_m: float = field_spec(doc="Hip to knee joint distance.", unit="m", min=0.2, max=0.7)
+    shank_m: float = field_spec(doc="Knee to ankle joint distance.", unit="m", min=0.2, max=0.7)
+    ankle_height_m: float = field_spec(doc="Ankle joint above the sole.", unit="m", min=0.02, max=0.2)
+    hip_min_rad: float = field_spec(doc="Hip extension limit.", unit="rad", min=-math.pi, max=math.pi)
+    hip_max_rad: float = field_spec(doc="Hip flexion limit.", unit="rad", min=-math.pi, max=math.pi)
+    knee_min_rad: float = field_spec(doc="Knee extension limit (0 = straight).", unit="rad", min=-0.5, max=math.pi)
+    knee_max_rad: float = field_spec(doc="Knee flexion limit.", unit="rad", min=0.0, max=math.pi)
+
+    def validate(self) -> None:
+        if self.hip_min_rad >= self.hip_max_rad:
+            fail("hip_min_rad", "must be below hip_max_rad")
+        if self.knee_min_rad >= self.knee_max_rad:
+            fail("knee_min_rad", "must be below knee_max_rad")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SwingConfig:
+    """The swing-ankle DMP and its demonstration."""
+
+    duration_s: float = field_spec(doc="Swing duration tau.", unit="s", min=0.3, max=5.0)
+    clearance_m: float = field_spec(doc="Peak ankle lift of the demonstration.", unit="m", min=0.02, max=0.3)
+    n_basis: int = field_spec(doc="Gaussian basis functions per dimension.", min=3, max=200)
+    stiffness: float = field_spec(doc="DMP spring K (damping is critical, 2 sqrt(K)).", min=1.0, max=10000.0)
+    alpha_s: float = field_spec(doc="Phase decay (ln 100: phase 0.01 at t = tau).", min=0.1, max=50.0)
+    regularisation: float = field_spec(doc="Ridge regularisation of the weight fit.", min=0.0, max=1.0)
+    substeps: int = field_spec(doc="RK4 substeps per 20 ms tick.", min=1, max=100)
+
+
+@dataclass(frozen=True, kw_only=True)
+class StepConfig:
+    """Step length: the uncompensated goal and the hard safety clamp."""
+
+    init_m: float = field_spec(doc="g_init: step length without compensation (the DMP is fitted here).", unit="m", min=0.02, max=0.6)
+    min_m: float = field_spec(doc="Shortest step ever commanded.", unit="m", min=0.02, max=0.6)
+    max_m: float = field_spec(doc="Longest step ever commanded.", unit="m", min=0.02, max=0.6)
+
+    def validate(self) -> None:
+        if not self.min_m <= self.init_m <= self.max_m:
+            fail("init_m", f"must lie between min_m {self.min_m} and max_m {self.max_m}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class LearningConfig:
+    """PI² over theta = (alpha, Xhat_CoM) of the step-length compensation."""
+
+    method: Literal["pi2", "pibb"] = field_spec(doc="PI² (the paper's) or PI^BB.")
+    rollouts_per_update: int = field_spec(doc="K: roll-outs per update (paper: 5).", min=2, max=100)
+    steps_per_rollout: int = field_spec(doc="N: gait cycles per roll-out (paper: 10).", min=1, max=100)
+    temperature_h: float = field_spec(doc="Sharpness of the cost-to-weight exponent.", min=0.1, max=100.0)
+    initial_alpha: float = field_spec(doc="Start value of alpha (paper A: -1.0, B: -0.4).", min=-100.0, max=100.0)
+    initial_xhat: float = field_spec(doc="Start value of Xhat_CoM (paper A: 0.6, B: 0.9).", min=-1.0, max=2.0)
+    noise_alpha: float = field_spec(doc="Exploration std of alpha at the start.", min=0.0, max=20.0)
+    noise_xhat: float = field_spec(doc="Exploration std of Xhat_CoM at the start.", min=0.0, max=1.0)
+    noise_decay: float = field_spec(doc="Exploration factor per accepted update.", min=0.01, max=1.0)
+    noise_floor: float = field_spec(doc="Smallest exploration, as a fraction of the start.", min=0.0, max=1.0)
+    alpha_min: float = field_spec(doc="Lower bound of alpha.", min=-100.0, max=100.0)
+    alpha_max: float = field_spec(doc="Upper bound of alpha.", min=-100.0, max=100.0)
+    xhat_min: float = field_spec(doc="Lower bound of Xhat_CoM.", min=-1.0, max=2.0)
+    xhat_max: float = field_spec(doc="Upper bound of Xhat_CoM.", min=-1.0, max=2.0)
+    fall_cost: float = field_spec(doc="lambda1: cost of falling at the first step.", min=0.0, max=1e7)
+    force_cost: float = field_spec(doc="lambda2: weight of the summed per-step stick force.", min=0.0, max=1e3)
+
+    def validate(self) -> None:
+        if self.alpha_min >= self.alpha_max:
+            fail("alpha_min", "must be below alpha_max")
+        if self.xhat_min >= self.xhat_max:
+            fail("xhat_min", "must be below xhat_max")
+        if not self.alpha_min <= self.initial_alpha <= self.alpha_max:
+            fail("initial_alpha", "must lie within alpha_min..alpha_max")
+        if not self.xhat_min <= self.initial_xhat <= self.xhat_max:
+            fail("initial_xhat", "must lie within xhat_min..xhat_max")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ControllerConfig:
+    legs: LegConfig = field_spec(doc="Exoskeleton leg geometry and joint limits.")
+    swing: SwingConfig = field_spec(doc="The DMP swing generator.")
+    step: StepConfig = field_spec(doc="Step length and its safety clamp.")
+    learning: LearningConfig = field_spec(doc="Online learning of the step-length compensation.")
