@@ -564,3 +564,44 @@ class Dmp:
             raise DmpError(f"substep {h:.4g} s too long for a stable RK4 at tau {self._tau_s:.4g} s: use more substeps")
         self._map = _tick_map(params, self._tau_s, dt_s, int(substeps))
         return self._map
+
+
+def reference_rollout(weights: DmpWeights, x0, goal, tau_s, dt_s, substeps, ticks, goal_change=None):
+    """Plain RK4, substep by substep, over (x, v, s, g): the oracle ``Dmp.step`` is tested against,
+    and the baseline of ``aider-exo bench algorithms``. Returns positions (ticks + 1, d).
+
+    goal_change: (tick, new_goal) requested before that tick, filtered like ``Dmp.set_goal``.
+    """
+    p = weights.params
+    k, d_, a_s, a_g = p.stiffness, p.effective_damping, p.alpha_s, p.effective_goal_alpha
+    centres, widths = basis(p)
+    request = np.array(goal, dtype=float)
+
+    def f(s):
+        psi = np.exp(-widths * (s - centres) ** 2)
+        return weights.weights @ psi * s / psi.sum()
+
+    def deriv(state):
+        x, v, s, g = state
+        return np.array([
+            v / tau_s,
+            (k * (g - x) - d_ * v - k * (g - x0) * s[0] + k * f(s[0])) / tau_s,
+            -a_s * s / tau_s,
+            a_g * (request - g) / tau_s,
+        ], dtype=object)
+
+    dim = len(x0)
+    state = np.array([np.array(x0, float), np.zeros(dim), np.ones(dim), np.array(goal, float)], dtype=object)
+    h = dt_s / substeps
+    out = [state[0].copy()]
+    for tick in range(ticks):
+        if goal_change is not None and tick == goal_change[0]:
+            request = np.array(goal_change[1], dtype=float)
+        for _ in range(substeps):
+            k1 = deriv(state)
+            k2 = deriv(state + h / 2 * k1)
+            k3 = deriv(state + h / 2 * k2)
+            k4 = deriv(state + h * k3)
+            state = state + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        out.append(state[0].copy())
+    return np.array(out)

@@ -21,7 +21,7 @@ from controller.demonstration import (
     minimum_jerk,
     swing_demonstration,
 )
-from controller.dmp import Dmp, DmpError, DmpParams, DmpWeights, basis, fit, forcing, phase
+from controller.dmp import Dmp, DmpError, DmpParams, DmpWeights, basis, fit, forcing, phase, reference_rollout
 
 DT_S = 0.02  # one controller tick
 TAU_S = 1.2
@@ -42,46 +42,6 @@ def run(dmp: Dmp, duration_s: float, dt_s: float = DT_S) -> np.ndarray:
 def second_difference(positions: np.ndarray, dt_s: float = DT_S) -> np.ndarray:
     """Finite-difference acceleration, shape (k - 1, d)."""
     return np.diff(positions, 2, axis=0) / dt_s**2
-
-
-def reference_rk4(weights: DmpWeights, x0, goal, tau_s, dt_s, substeps, ticks, goal_change=None):
-    """Plain RK4, substep by substep, over (x, v, s, g): the oracle for ``Dmp.step``.
-
-    goal_change: (tick, new_goal) requested before that tick, filtered like ``Dmp.set_goal``.
-    """
-    p = weights.params
-    k, d_, a_s, a_g = p.stiffness, p.effective_damping, p.alpha_s, p.effective_goal_alpha
-    centres, widths = basis(p)
-    request = np.array(goal, dtype=float)
-
-    def f(s):
-        psi = np.exp(-widths * (s - centres) ** 2)
-        return weights.weights @ psi * s / psi.sum()
-
-    def deriv(state):
-        x, v, s, g = state
-        return np.array([
-            v / tau_s,
-            (k * (g - x) - d_ * v - k * (g - x0) * s[0] + k * f(s[0])) / tau_s,
-            -a_s * s / tau_s,
-            a_g * (request - g) / tau_s,
-        ], dtype=object)
-
-    dim = len(x0)
-    state = np.array([np.array(x0, float), np.zeros(dim), np.ones(dim), np.array(goal, float)], dtype=object)
-    h = dt_s / substeps
-    out = [state[0].copy()]
-    for tick in range(ticks):
-        if goal_change is not None and tick == goal_change[0]:
-            request = np.array(goal_change[1], dtype=float)
-        for _ in range(substeps):
-            k1 = deriv(state)
-            k2 = deriv(state + h / 2 * k1)
-            k3 = deriv(state + h / 2 * k2)
-            k4 = deriv(state + h * k3)
-            state = state + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        out.append(state[0].copy())
-    return np.array(out)
 
 
 # --- the demonstration ----------------------------------------------------------------------------
@@ -221,7 +181,7 @@ def test_step_is_rk4_over_x_v_s_and_the_goal():
         if tick == 17:
             dmp.set_goal([0.12, 0.03])
         ours.append(dmp.step(0.025, substeps=7))
-    oracle = reference_rk4(weights, x0, goal, tau, 0.025, 7, 40, goal_change=(17, [0.12, 0.03]))
+    oracle = reference_rollout(weights, x0, goal, tau, 0.025, 7, 40, goal_change=(17, [0.12, 0.03]))
     assert np.abs(np.array(ours) - oracle).max() < 1e-12
 
 

@@ -1,8 +1,8 @@
 """The controller's numerical core per call: one DMP tick, one leg inverse kinematics, one PI² update.
 
 * DMP: one 20 ms tick of the 2-D swing DMP with RK4 substeps, over whole swings; beside it, in the
-  same run, a straightforward substep-by-substep RK4 of the same equations in numpy (the baseline
-  our tick map replaces);
+  same run, ``controller.dmp.reference_rollout``: the plain substep-by-substep RK4 of the same
+  equations (the oracle of the tests, and the baseline the precomputed tick map replaces);
 * IK: ``controller.kinematics.inverse`` on reachable swing-ankle targets;
 * PI²: ``pi2_update`` for K = 5 roll-outs of N = 10 steps.
 """
@@ -41,34 +41,8 @@ def _per_call_us(fn: Callable[[], None], calls: int, repeats: int) -> dict[str, 
     return {"median": round(statistics.median(samples), 2), "best": round(min(samples), 2)}
 
 
-def _naive_rk4_tick(weights: Any, state: np.ndarray, goal: np.ndarray, x0: np.ndarray, tau: float, dt: float, substeps: int) -> np.ndarray:
-    """Baseline: RK4 over (x, v, s) substep by substep, the forcing term evaluated at each stage."""
-    from controller.dmp import basis
-
-    p = weights.params
-    centres, widths = basis(p)
-    k, d = p.stiffness, p.effective_damping
-    n = goal.size
-
-    def deriv(y: np.ndarray) -> np.ndarray:
-        x, v, s = y[:n], y[n:2 * n], y[2 * n]
-        psi = np.exp(-widths * (s - centres) ** 2)
-        f = weights.weights @ psi * s / psi.sum()
-        dv = (k * (goal - x) - d * v - k * (goal - x0) * s + k * f) / tau
-        return np.concatenate([v / tau, dv, [-p.alpha_s * s / tau]])
-
-    h = dt / substeps
-    for _ in range(substeps):
-        k1 = deriv(state)
-        k2 = deriv(state + h / 2 * k1)
-        k3 = deriv(state + h / 2 * k2)
-        k4 = deriv(state + h * k3)
-        state = state + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return state
-
-
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    from controller.dmp import Dmp
+    from controller.dmp import Dmp, reference_rollout
     from controller.kinematics import Leg, forward, inverse
     from controller.pi2 import pi2_update
     from controller.swing import load_swing
@@ -89,12 +63,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         for _ in range(ticks_per_swing):
             dmp.step(dt, substeps)
 
-    state0 = np.concatenate([np.zeros(2), np.zeros(2), [1.0]])
-
     def naive_swing() -> None:
-        state = state0
-        for _ in range(ticks_per_swing):
-            state = _naive_rk4_tick(weights, state, goal, np.zeros(2), tau, dt, substeps)
+        reference_rollout(weights, np.zeros(2), goal, tau, dt, substeps, ticks_per_swing)
 
     leg = Leg(cfg.legs.thigh_m, cfg.legs.shank_m, cfg.legs.hip_min_rad, cfg.legs.hip_max_rad, cfg.legs.knee_min_rad, cfg.legs.knee_max_rad)
     rng = np.random.default_rng(0)
