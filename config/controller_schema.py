@@ -68,6 +68,7 @@ class LearningConfig:
     noise_xhat: float = field_spec(doc="Exploration std of Xhat_CoM at the start.", min=0.0, max=1.0)
     noise_decay: float = field_spec(doc="Exploration factor per accepted update.", min=0.01, max=1.0)
     noise_floor: float = field_spec(doc="Smallest exploration, as a fraction of the start.", min=0.0, max=1.0)
+    average_last: int = field_spec(doc="The evaluated and deployed theta is the mean of the last M updates.", min=1, max=100)
     alpha_min: float = field_spec(doc="Lower bound of alpha.", min=-100.0, max=100.0)
     alpha_max: float = field_spec(doc="Upper bound of alpha.", min=-100.0, max=100.0)
     xhat_min: float = field_spec(doc="Lower bound of Xhat_CoM.", min=-1.0, max=2.0)

@@ -33,6 +33,7 @@ def pi2_params(cfg: ControllerConfig) -> Pi2Params:
         method=c.method,
         lambda1=c.fall_cost,
         lambda2=c.force_cost,
+        average_last=c.average_last,
     )
 
 
