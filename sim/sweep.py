@@ -67,6 +67,7 @@ def run_sweep(
             "cycles_walked_min": min(e["cycles_completed"] for e in rows),
             "full_walks": sum(e["cycles_completed"] >= cycles for e in rows),
             "falls": sum(e["fell"] for e in rows),
+            "stalls": sum(not e["fell"] and e["cycles_completed"] < cycles for e in rows),
             "fall_phases": sorted({e["fall_phase"] for e in rows if e["fell"]}),
             "fall_margin_m_mean": round(float(np.mean([e["fall_margin_m"] for e in rows if e["fell"]])), 3)
             if any(e["fell"] for e in rows) else None,

@@ -217,9 +217,10 @@ class Walker:
             self.com_target += np.clip(target - self.com_target, -s.shift_speed_m_s * dt, s.shift_speed_m_s * dt)
             # The patient lifts a stick only once the CoM is where the remaining support holds it;
             # a patient who cannot get there waits (the walk stalls rather than falls).
-            close = np.linalg.norm(com[:2] - target) < 0.02 and np.linalg.norm(self.kin.com_velocity[:2]) < 0.05
-            if close and self.phase_t > 0.2:
-                lifting = self.stick_queue[:2] if self.together else self.stick_queue[:1]
+            lifting = self.stick_queue[:2] if self.together else self.stick_queue[:1]
+            margin = self._support_margin(tips=[side for side in SIDES if side not in lifting and self.planted[side]])
+            settled = margin >= s.shift_margin_m / 2 and np.linalg.norm(self.kin.com_velocity[:2]) < 0.05
+            if settled and self.phase_t > 0.2:
                 for side in lifting:
                     self.unloading[side] = 0.0
                 self._set_phase(Phase.STICKS)
@@ -430,15 +431,23 @@ class Walker:
 
     # -- the loop ------------------------------------------------------------------------------
 
-    def _support_margin(self) -> float:
+    def _support_margin(self, tips: list[str] | None = None) -> float:
+        """Static stability margin of the CoM over the stance ankles and ``tips`` (by default every
+        planted tip). In 3-D the pivot polygon; in the sagittal mode, where the plane spring holds
+        the trunk laterally, its fore-aft extent (two ankles at different y would otherwise make a
+        thin diagonal strip that says nothing about the sagittal balance)."""
         from sim.truth import pivot_polygon, stability_margin
 
         feet = [s for s in SIDES if self.stance_feet[s]]
-        tips = [s for s in SIDES if self.planted[s]]
+        tips = [s for s in SIDES if self.planted[s]] if tips is None else tips
         ankles = np.array([self.ankle_xy(s) for s in feet]).reshape(-1, 2)
         tip_xy = np.array([self.tip_point(s)[:2] for s in tips]).reshape(-1, 2)
+        com = self.kin.com[:2]
+        if self.cfg.mode == "sagittal":
+            xs = np.concatenate([ankles[:, 0], tip_xy[:, 0]])
+            return float(min(com[0] - xs.min(), xs.max() - com[0]))
         poly = pivot_polygon(ankles, tip_xy, ankle_halfwidth=self.cfg.model.foot.half_width_m)
-        return float(stability_margin(poly, self.kin.com[:2]))
+        return float(stability_margin(poly, com))
 
     def run(self, max_steps: int, max_time_s: float = 120.0, on_tick=None) -> WalkResult:
         """Walk until ``max_steps`` steps have landed, a fall, or ``max_time_s``.
@@ -503,13 +512,17 @@ def initial_pose(cfg: SimConfig) -> StancePose:
     return StancePose(foot_x_m=(0.06, -0.06), tip_xy_m=((ahead, w), (ahead, -w)), trunk_pitch_rad=0.10, hip_x_m=0.05, knee_rad=0.08)
 
 
-def walk(cfg: SimConfig, settings: WalkSettings, seed: int, max_steps: int, *, gui: bool = False, on_tick=None) -> WalkResult:
-    """One episode in a fresh world (deterministic for a seed)."""
+def walk(
+    cfg: SimConfig, settings: WalkSettings, seed: int, max_steps: int, *, gui: bool = False, on_tick=None,
+    max_time_s: float = 120.0,
+) -> WalkResult:
+    """One episode in a fresh world (deterministic for a seed); it ends after ``max_steps`` steps,
+    a fall, or ``max_time_s`` of simulated time (a stall: the patient waited for a safe stick move)."""
     rng = np.random.default_rng(seed)
     with World(cfg, gui=gui) as world:
         world.place(initial_pose(cfg))
         walker = Walker(world, cfg, settings, rng)
-        result = walker.run(max_steps, on_tick=on_tick)
+        result = walker.run(max_steps, max_time_s=max_time_s, on_tick=on_tick)
     result.seed = seed
     return result
 

@@ -18,15 +18,15 @@ def _fingerprint(result):
 
 
 def test_same_seed_same_walk_and_another_seed_differs():
-    a = walk(SIM, WalkSettings(step_length_m=0.12), seed=3, max_steps=2)
-    b = walk(SIM, WalkSettings(step_length_m=0.12), seed=3, max_steps=2)
-    c = walk(SIM, WalkSettings(step_length_m=0.12), seed=4, max_steps=2)
+    a = walk(SIM, WalkSettings(step_length_m=0.12), seed=3, max_steps=2, max_time_s=12.0)
+    b = walk(SIM, WalkSettings(step_length_m=0.12), seed=3, max_steps=2, max_time_s=12.0)
+    c = walk(SIM, WalkSettings(step_length_m=0.12), seed=4, max_steps=2, max_time_s=12.0)
     assert a.steps and _fingerprint(a) == _fingerprint(b)
     assert _fingerprint(a) != _fingerprint(c)  # the patient's stick placement is noisy
 
 
 def test_a_far_too_long_step_falls_and_the_fall_is_reported():
-    result = walk(SIM, WalkSettings(step_length_m=0.40), seed=0, max_steps=6)
+    result = walk(SIM, WalkSettings(step_length_m=0.40), seed=0, max_steps=6, max_time_s=30.0)
     assert result.fell
     summary = episode_summary(result)
     assert summary["fall_reason"] and summary["fall_phase"] in {"settle", "shift", "sticks", "lean", "swing"}
@@ -34,7 +34,7 @@ def test_a_far_too_long_step_falls_and_the_fall_is_reported():
 
 
 def test_cli_walk_json_names_its_mode(capsys):
-    assert main(["sim", "walk", "--mode", "sagittal", "--cycles", "1", "--json"]) == 0
+    assert main(["sim", "walk", "--mode", "sagittal", "--cycles", "1", "--max-time", "15", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["mode"] == "sagittal" and data["step_length_m"] == 0.12
     assert set(data) >= {"steps_completed", "fell", "fall_phase", "mean_stick_force_n", "mean_arm_torque_nm"}
@@ -51,7 +51,8 @@ def test_json_stdout_stays_clean_of_pybullet_prints():
 
     from tests.conftest import ROOT
 
-    proc = subprocess.run([sys.executable, "-m", "tools.cli", "sim", "walk", "--mode", "sagittal", "--cycles", "1", "--json"],
+    proc = subprocess.run([sys.executable, "-m", "tools.cli", "sim", "walk", "--mode", "sagittal", "--cycles", "1",
+                           "--max-time", "5", "--json"],
                           cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["mode"] == "sagittal"

@@ -41,6 +41,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     wk.add_argument("--seed", type=int, default=0)
     wk.add_argument("--cycles", type=positive_int, default=10)
     wk.add_argument("--gui", action="store_true", help="open a PyBullet window")
+    wk.add_argument("--max-time", type=float, default=120.0, metavar="S", help="simulated seconds before a walk counts as stalled")
     wk.set_defaults(func=run_walk)
 
     rd = sim_sub.add_parser("render", help="render one walk to a PNG strip and a GIF")
@@ -86,13 +87,13 @@ def run_sweep(args: argparse.Namespace) -> int:
         print_json(result)
         return 0
     print(f"fixed-step sweep, {result['mode']} mode, {args.cycles} gait cycles per walk, {args.seeds} seeds")
-    print(f"{'step m':>7}{'cycles mean':>12}{'min':>5}{'full':>6}{'falls':>6}  {'fall phases':<22}{'margin m':>9}{'stick N':>9}{'arm N.m':>9}")
+    print(f"{'step m':>7}{'cycles mean':>12}{'min':>5}{'full':>6}{'falls':>6}{'stalls':>7}  {'fall phases':<22}{'margin m':>9}{'stick N':>9}{'arm N.m':>9}")
     for row in result["table"]:
         margin = "" if row["fall_margin_m_mean"] is None else f"{row['fall_margin_m_mean']:.3f}"
         force = "" if row["mean_stick_force_n"] is None else f"{row['mean_stick_force_n']:.0f}"
         torque = "" if row["mean_arm_torque_nm"] is None else f"{row['mean_arm_torque_nm']:.0f}"
         print(f"{row['step_length_m']:>7.2f}{row['cycles_walked_mean']:>12.1f}{row['cycles_walked_min']:>5}"
-              f"{row['full_walks']:>4}/{row['episodes']}{row['falls']:>6}  {','.join(row['fall_phases']):<22}{margin:>9}{force:>9}{torque:>9}")
+              f"{row['full_walks']:>4}/{row['episodes']}{row['falls']:>6}{row['stalls']:>7}  {','.join(row['fall_phases']):<22}{margin:>9}{force:>9}{torque:>9}")
     return 0
 
 
@@ -101,12 +102,17 @@ def run_walk(args: argparse.Namespace) -> int:
     from sim.walk import WalkSettings, walk
 
     cfg = _sim_config(args)
-    result = walk(cfg, WalkSettings(step_length_m=args.length), seed=args.seed, max_steps=2 * args.cycles, gui=args.gui)
+    if not args.max_time > 0:
+        raise ConfigError("--max-time must be positive")
+    result = walk(cfg, WalkSettings(step_length_m=args.length), seed=args.seed, max_steps=2 * args.cycles, gui=args.gui,
+                  max_time_s=args.max_time)
     summary = dict(episode_summary(result), mode=cfg.mode)
     if args.json:
         print_json(summary)
     else:
         fall = f"fell in the {summary['fall_phase']} phase: {summary['fall_reason']}" if summary["fell"] else "no fall"
+        if not summary["fell"] and summary["cycles_completed"] < args.cycles:
+            fall += " (stalled: the patient waited for a safe stick move)"
         print(f"{cfg.mode}: {summary['steps_completed']} steps ({summary['cycles_completed']} cycles) in "
               f"{summary['simulated_s']} s, {fall}; mean stick force {summary['mean_stick_force_n']} N, "
               f"upper-body torque {summary['mean_arm_torque_nm']} N.m")
