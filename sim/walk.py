@@ -382,10 +382,16 @@ class Walker:
                 # feed forward their share of the contact forces.
                 # Differential IK from the measured posture: both legs move the hip by the same small
                 # step, so their targets agree with each other however the feet really lie.
-                targets = self._stance_targets(hip_i, knee_i, step_xz, pitch)
-                for n, j, target in ((n_hip, hip_i, targets[0]), (n_knee, knee_i, targets[1])):
+                if (reading.heel_force_n + reading.toe_force_n)[SIDES.index(side)] < s.foot_contact_n:
+                    # A stance foot that carries (almost) nothing, as after a rebound at touch-down:
+                    # hold the leg's posture rather than push an unloaded foot along the floor.
+                    targets, ff = (w.q[hip_i], w.q[knee_i]), (0.0, 0.0)
+                else:
+                    targets = self._stance_targets(hip_i, knee_i, step_xz, pitch)
+                    ff = (s.leg_ff_gain * tau[hip_i], s.leg_ff_gain * tau[knee_i])
+                for n, target, torque in ((n_hip, targets[0], ff[0]), (n_knee, targets[1], ff[1])):
                     q_cmd = float(np.clip(target, w.exo.lower[n] + 1e-3, w.exo.upper[n] - 1e-3))
-                    w.exo.command(n, Mode.TRACK, q_cmd, 0.0, float(np.clip(s.leg_ff_gain * tau[j], -100.0, 100.0)))
+                    w.exo.command(n, Mode.TRACK, q_cmd, 0.0, float(np.clip(torque, -100.0, 100.0)))
         # Patient: planted arms push (torque feed-forward), moving arms follow their tip path.
         g = kin.gravity_torques()
         for side in SIDES:
