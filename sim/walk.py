@@ -289,6 +289,10 @@ class Walker:
                 self.stance_feet[leg] = True
                 self.swing_leg = None
                 self.next_swing = OTHER[leg]
+                # Load acceptance: the patient takes the CoM from where the landing left it (often
+                # ahead of the front foot, on the sticks) rather than snapping back to the target
+                # of the lean, which throws the body backward off the new support.
+                self.com_target = self.kin.com[:2].copy()
                 self._start_stick_moves()
 
     def swing_target(self) -> np.ndarray:

@@ -25,6 +25,16 @@ def test_same_seed_same_walk_and_another_seed_differs():
     assert _fingerprint(a) != _fingerprint(c)  # the patient's stick placement is noisy
 
 
+def test_a_short_step_walks_in_the_plane_without_falling():
+    # Before load acceptance (the patient taking the CoM from where the landing left it) this
+    # fell in the shift after the second landing on every seed.
+    result = walk(SIM, WalkSettings(step_length_m=0.10), seed=1, max_steps=6, max_time_s=40.0)
+    assert not result.fell, (result.fall_phase, result.fall_reason)
+    assert result.steps_completed == 6
+    assert [s.leg for s in result.steps] == ["r", "l"] * 3  # the legs alternate
+    assert all(0.0 < s.mean_stick_force_n < 400.0 for s in result.steps)  # the sticks carry a share
+
+
 def test_a_far_too_long_step_falls_and_the_fall_is_reported():
     result = walk(SIM, WalkSettings(step_length_m=0.40), seed=0, max_steps=6, max_time_s=30.0)
     assert result.fell
