@@ -62,6 +62,7 @@ class WalkSettings:
     unload_time_s: float = 0.3
     lean_speed_m_s: float = 0.15
     lean_behind_sticks_m: float = 0.24
+    lean_past_stance_m: float = 0.05  # CoM ahead of the stance ankle before a swing starts
     stick_force_comfort_n: float = 260.0
     swing_trigger_stick_n: float = 60.0
     foot_contact_n: float = 60.0
@@ -252,7 +253,11 @@ class Walker:
                     self._set_phase(Phase.SHIFT)
                 else:
                     tips_x = float(np.mean([self.tip_point(side)[0] for side in SIDES]))
-                    self.lean_goal_x = tips_x - s.lean_behind_sticks_m
+                    # The patient leans onto the sticks and past the stance foot: a swing that
+                    # starts with the CoM over (or behind) the stance heel tips the body backward,
+                    # as sticks can push but not pull.
+                    stance_x = self.ankle_xy(OTHER[self.next_swing])[0]
+                    self.lean_goal_x = max(tips_x - s.lean_behind_sticks_m, stance_x + s.lean_past_stance_m)
                     self._set_phase(Phase.LEAN)
             return
         if self.phase in (Phase.LEAN, Phase.SWING):
@@ -270,7 +275,8 @@ class Walker:
         plantar = reading.heel_force_n + reading.toe_force_n
         if self.phase is Phase.LEAN and self.swing_leg is None:
             loaded = all(reading.stick_force_n > s.swing_trigger_stick_n) and all(plantar > s.foot_contact_n)
-            if loaded and self.phase_t > 0.3:
+            leaned = self.kin.com[0] >= self.ankle_xy(OTHER[self.next_swing])[0] + s.lean_past_stance_m - 0.005
+            if loaded and leaned and self.phase_t > 0.3:
                 leg = self.next_swing
                 stance = OTHER[leg]
                 self.swing_leg = leg
