@@ -63,6 +63,8 @@ class WalkSettings:
     lean_speed_m_s: float = 0.15
     lean_behind_sticks_m: float = 0.24
     lean_past_stance_m: float = 0.05  # CoM ahead of the stance ankle before a swing starts
+    stalled_lean_s: float = 2.0  # a lean that has stopped this long ...
+    stalled_lean_lead_m: float = 0.02  # ... with the CoM this far past the stance ankle starts the swing
     stick_force_comfort_n: float = 260.0
     swing_trigger_stick_n: float = 60.0
     foot_contact_n: float = 60.0
@@ -275,8 +277,15 @@ class Walker:
         plantar = reading.heel_force_n + reading.toe_force_n
         if self.phase is Phase.LEAN and self.swing_leg is None:
             loaded = all(reading.stick_force_n > s.swing_trigger_stick_n) and all(plantar > s.foot_contact_n)
-            leaned = self.kin.com[0] >= self.ankle_xy(OTHER[self.next_swing])[0] + s.lean_past_stance_m - 0.005
-            if loaded and leaned and self.phase_t > 0.3:
+            lead = self.kin.com[0] - self.ankle_xy(OTHER[self.next_swing])[0]
+            leaned = loaded and lead >= s.lean_past_stance_m - 0.005 and self.phase_t > 0.3
+            # A lean that stops short (the trailing leg straight, item 12 of docs/SIM.md) with the
+            # CoM past the stance ankle: the step starts anyway, as the patient's step button would.
+            stalled = (
+                self.phase_t > s.stalled_lean_s and lead >= s.stalled_lean_lead_m
+                and abs(self.kin.com_velocity[0]) < 0.02 and all(plantar > s.foot_contact_n)
+            )
+            if leaned or stalled:
                 leg = self.next_swing
                 stance = OTHER[leg]
                 self.swing_leg = leg

@@ -35,6 +35,14 @@ def test_a_short_step_walks_in_the_plane_without_falling():
     assert all(0.0 < s.mean_stick_force_n < 400.0 for s in result.steps)  # the sticks carry a share
 
 
+def test_a_lean_that_stalls_past_the_stance_foot_starts_the_step():
+    # At 0.16 m the trailing leg goes straight before the lean reaches its goal (docs/SIM.md item 12).
+    stuck = walk(SIM, WalkSettings(step_length_m=0.16, stalled_lean_s=1e9), seed=3, max_steps=6, max_time_s=25.0)
+    assert not stuck.fell and stuck.steps_completed < 6  # waits for good
+    result = walk(SIM, WalkSettings(step_length_m=0.16), seed=3, max_steps=6, max_time_s=40.0)
+    assert not result.fell and result.steps_completed == 6
+
+
 def test_a_far_too_long_step_falls_and_the_fall_is_reported():
     result = walk(SIM, WalkSettings(step_length_m=0.40), seed=0, max_steps=6, max_time_s=30.0)
     assert result.fell
