@@ -315,12 +315,8 @@ class Walker:
         s = self.s
         u = min(self.phase_t / s.swing_time_s, 1.0)
 
-        def blend(a: float) -> float:
-            a = min(max(a, 0.0), 1.0)
-            return a * a * a * (10 - 15 * a + 6 * a * a)
-
-        x = self.swing_start[0] + (self.swing_goal[0] - self.swing_start[0]) * blend((u - 0.15) / 0.7)
-        lift = blend(u / 0.3) - blend((u - 0.7) / 0.3)
+        x = self.swing_start[0] + (self.swing_goal[0] - self.swing_start[0]) * _minimum_jerk((u - 0.15) / 0.7)
+        lift = _minimum_jerk(u / 0.3) - _minimum_jerk((u - 0.7) / 0.3)
         z = self.body.ankle_height_m + s.swing_clearance_m * lift + (0.0 if u < 1.0 else -0.01)
         return np.array([x, z])
 
@@ -331,8 +327,7 @@ class Walker:
         com = kin.com
         trunk_origin, trunk_rot = w.link_frame("trunk")
         rpy = rpy_from_matrix(trunk_rot)
-        omega = np.array(w.client.getBaseVelocity(w.robot)[1])
-        base_v = np.array(w.client.getBaseVelocity(w.robot)[0])
+        base_v, omega = (np.array(v) for v in w.client.getBaseVelocity(w.robot))
         feet = [side for side in SIDES if self.stance_feet[side]]
         tips = [side for side in SIDES if self.planted[side]]
         # Where the stance legs carry the hip: the patient's lean sets x (rate-limited), height is
@@ -371,7 +366,8 @@ class Walker:
             wrench, com, contacts, mu=0.5, min_normal_n=s.min_contact_n,
             weights=np.array([1.0, 1.0, 1.0, 2.0, 2.0, 0.5]), known_moment=spring,
         )
-        tau = kin.gravity_torques()
+        g = kin.gravity_torques()  # the arms' and the swing leg's feed-forward
+        tau = g.copy()  # minus the contact forces below: the stance legs' and planted arms' share
         for i in foot_links.values():  # the floor holds a stance foot up, not the leg
             tau -= kin.point_jacobian(i, kin.link_com[i + 1]).T @ np.array([0.0, 0.0, w.masses[i + 1] * GRAVITY])
         for contact, f in zip(contacts, forces):
@@ -390,7 +386,6 @@ class Walker:
                     h_world, knee = leg_ik(rel, self.body.thigh_m, self.body.shank_m)
                 except ValueError:
                     h_world, knee = w.q[hip_i] - pitch, w.q[knee_i]
-                g = kin.gravity_torques()
                 hip_cmd = float(np.clip(h_world + pitch, w.exo.lower[n_hip] + 1e-3, w.exo.upper[n_hip] - 1e-3))
                 knee_cmd = float(np.clip(knee, w.exo.lower[n_knee] + 1e-3, w.exo.upper[n_knee] - 1e-3))
                 w.exo.command(n_hip, Mode.TRACK, hip_cmd, 0.0, float(np.clip(g[hip_i], -90, 90)))
@@ -412,15 +407,12 @@ class Walker:
                     q_cmd = float(np.clip(target, w.exo.lower[n] + 1e-3, w.exo.upper[n] - 1e-3))
                     w.exo.command(n, Mode.TRACK, q_cmd, 0.0, float(np.clip(torque, -100.0, 100.0)))
         # Patient: planted arms push (torque feed-forward), moving arms follow their tip path.
-        g = kin.gravity_torques()
         for side in SIDES:
             joints = self.arm_joints[side]
             names = [JOINT_ORDER[j] for j in joints]
             if side in self.tip_path:
                 start, goal, u = self.tip_path[side]
-                a = min(u, 1.0)
-                blend = a * a * a * (10 - 15 * a + 6 * a * a)
-                point = start + (goal - start) * blend
+                point = start + (goal - start) * _minimum_jerk(u)
                 lift = 4 * min(u, 1.0) * (1 - min(u, 1.0)) * s.stick_lift_m
                 point = point + np.array([0.0, 0.0, lift - (0.02 if u >= 1.0 else 0.0) + self.cfg.model.sticks.tip_radius_m])
                 sign = 1.0 if side == "l" else -1.0
@@ -529,6 +521,12 @@ class Walker:
         result.steps = self.steps
         result.duration_s = self.t
         return result
+
+
+def _minimum_jerk(a: float) -> float:
+    """Minimum-jerk blend ``10 a^3 - 15 a^4 + 6 a^5`` from 0 to 1, clamped outside [0, 1]."""
+    a = min(max(a, 0.0), 1.0)
+    return a * a * a * (10 - 15 * a + 6 * a * a)
 
 
 def initial_pose(cfg: SimConfig) -> StancePose:
