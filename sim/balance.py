@@ -29,11 +29,14 @@ class Contact:
     link: int
     point: np.ndarray
     cost: float  # relative effort of loading it (arms cost more than legs)
+    lateral: bool = True  # False: no force across the walking direction (a leg without frontal-plane joints)
 
 
-def pyramid_edges(mu: float) -> np.ndarray:
-    """(4, 3) unit-normal-load edges of a friction pyramid with coefficient ``mu``."""
-    return np.array([[mu, 0, 1], [-mu, 0, 1], [0, mu, 1], [0, -mu, 1]], dtype=float)
+def pyramid_edges(mu: float, lateral: bool = True) -> np.ndarray:
+    """(4, 3) unit-normal-load edges of a friction pyramid with coefficient ``mu``; without
+    ``lateral`` the pyramid is flattened to the x-z plane."""
+    mu_y = mu if lateral else 0.0
+    return np.array([[mu, 0, 1], [-mu, 0, 1], [0, mu_y, 1], [0, -mu_y, 1]], dtype=float)
 
 
 def distribute(
@@ -56,18 +59,18 @@ def distribute(
     k = len(contacts)
     if k == 0:
         return np.zeros((0, 3)), float(np.linalg.norm(weights * wrench))
-    edges = pyramid_edges(mu)
+    edges = np.stack([pyramid_edges(mu, c.lateral) for c in contacts])  # (k, 4, 3)
     r = np.array([c.point for c in contacts]) - com  # (k, 3)
     a = np.empty((6, 4 * k))
-    a[:3] = np.tile(edges.T, k)
-    a[3:] = np.cross(np.repeat(r, 4, axis=0), np.tile(edges, (k, 1))).T
+    a[:3] = edges.reshape(-1, 3).T
+    a[3:] = np.cross(np.repeat(r, 4, axis=0), edges.reshape(-1, 3)).T
     f0 = np.array([0.0, 0.0, min_normal_n])
     base = np.concatenate([k * f0, np.cross(r, f0).sum(axis=0)])
     reg = np.repeat([np.sqrt(ct.cost) for ct in contacts], 4)
     lhs = np.vstack([weights[:, None] * a, np.diag(reg)])
     rhs = np.concatenate([weights * (wrench - base), np.zeros(4 * k)])
     lam = nnls(lhs, rhs)
-    forces = lam.reshape(k, 4) @ edges + np.array([0.0, 0.0, min_normal_n])
+    forces = np.einsum("ke,kec->kc", lam.reshape(k, 4), edges) + np.array([0.0, 0.0, min_normal_n])
     residual = float(np.linalg.norm(weights * (a @ lam + base - wrench)))
     return forces, residual
 

@@ -36,6 +36,7 @@ from sim.balance import Contact, WrenchGains, desired_wrench, distribute
 from sim.kinematics import Kinematics
 from sim.model import JOINT_ORDER, arm_ik, leg_ik
 from sim.sensors import Sensors, rpy_from_matrix
+from sim.truth import pivot_polygon, stability_margin
 from sim.world import GRAVITY, StancePose, World
 
 SIDES = ("l", "r")
@@ -201,11 +202,20 @@ class Walker:
         lo, hi = ankles[:, 0].min(), ankles[:, 0].max()
         x = float(self.kin.com[0])
         m = self.s.shift_margin_m
-        if remaining_tips:  # alternating: the support reaches toward the planted tip
-            tip = self.tip_point(remaining_tips[0])[:2]
-            target = np.array([np.clip(x, lo + m, (hi + tip[0]) / 2), (ankles[:, 1].mean() + tip[1]) / 3])
-            return target
-        return np.array([np.clip(x, lo + m, max(hi - m, lo + m)), 0.0])
+        if self.cfg.mode == "sagittal":
+            return np.array([np.clip(x, lo + m, max(hi - m, lo + m)), 0.0])
+        # 3-D: the legs have no frontal-plane joints, so the patient cannot carry the CoM sideways
+        # (docs/SIM.md item 13); it moves fore-aft only, to the nearest point that the remaining
+        # support holds with margin.
+        tip_xy = np.array([self.tip_point(t)[:2] for t in remaining_tips]).reshape(-1, 2)
+        poly = pivot_polygon(ankles, tip_xy, ankle_halfwidth=self.cfg.model.foot.half_width_m)
+        y = float(self.kin.com[1])
+        far = max(hi, *(self.tip_point(t)[0] for t in remaining_tips)) if remaining_tips else hi
+        xs = np.linspace(lo - self.cfg.model.foot.heel_back_m, (hi + far) / 2, 61)
+        margins = np.array([stability_margin(poly, (xi, y)) for xi in xs])
+        ok = margins >= m
+        best = xs[ok][np.argmin(np.abs(xs[ok] - x))] if ok.any() else xs[np.argmax(margins)]
+        return np.array([best, y])
 
     def patient_update(self, reading) -> None:
         s, dt = self.s, self.dt_control
@@ -352,7 +362,12 @@ class Walker:
             rpy, trunk_rot.T @ omega, np.array([0.0, s.trunk_pitch_rad]), self.gains,
         )
         wrench[:2] += s.integral_gain_n_ms * self.integral
-        contacts = [Contact(f"foot_{f}", self.ankle_idx[f], kin.joint_origin[self.ankle_idx[f]].copy(), 1e-4) for f in feet]
+        # In 3-D the legs (hip and knee pitch only) cannot push sideways: the sticks carry the
+        # lateral force and the roll moment.
+        lateral = self.cfg.mode == "sagittal"
+        contacts = [
+            Contact(f"foot_{f}", self.ankle_idx[f], kin.joint_origin[self.ankle_idx[f]].copy(), 1e-4, lateral) for f in feet
+        ]
         for t in tips:
             cost = 4e-4 * (1.0 + 400.0 * (self.unloading[t] / s.unload_time_s) ** 2) if t in self.unloading else 4e-4
             contacts.append(Contact(f"tip_{t}", self.forearm_idx[t], self.tip_point(t), cost))
@@ -453,8 +468,6 @@ class Walker:
         planted tip). In 3-D the pivot polygon; in the sagittal mode, where the plane spring holds
         the trunk laterally, its fore-aft extent (two ankles at different y would otherwise make a
         thin diagonal strip that says nothing about the sagittal balance)."""
-        from sim.truth import pivot_polygon, stability_margin
-
         feet = [s for s in SIDES if self.stance_feet[s]]
         tips = [s for s in SIDES if self.planted[s]] if tips is None else tips
         ankles = np.array([self.ankle_xy(s) for s in feet]).reshape(-1, 2)

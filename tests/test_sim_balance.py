@@ -57,3 +57,14 @@ def test_a_com_behind_the_ankles_cannot_be_held_by_sticks_that_only_push():
 def test_pyramid_edges():
     edges = pyramid_edges(0.5)
     assert edges.shape == (4, 3) and np.all(edges[:, 2] == 1.0)
+
+
+def test_feet_without_frontal_joints_leave_the_lateral_force_to_the_sticks():
+    com, contacts = _stance(0.08)
+    contacts = [Contact(c.name, c.link, c.point, c.cost, lateral=not c.name.startswith("foot")) for c in contacts]
+    push = np.array([0.0, 60.0, 900.0, 0.0, 0.0, 0.0])  # a sideways push on the CoM
+    forces, residual = distribute(push, com, contacts, mu=0.5, min_normal_n=10.0, weights=np.ones(6))
+    assert np.all(forces[:2, 1] == 0.0)
+    assert forces[2:, 1].sum() == pytest.approx(60.0, abs=2.0)
+    assert np.all(np.abs(forces[2:, 1]) <= 0.5 * forces[2:, 2] + 1e-9)
+    assert pyramid_edges(0.5, lateral=False)[:, 1].tolist() == [0.0] * 4
