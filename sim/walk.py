@@ -69,6 +69,7 @@ class WalkSettings:
     stick_force_comfort_n: float = 260.0
     swing_trigger_stick_n: float = 60.0
     foot_contact_n: float = 60.0
+    foot_lift_s: float = 0.1  # patient-only mode: a foot unloaded this long is swinging
     shift_margin_m: float = 0.03
     shift_speed_m_s: float = 0.05
     trunk_pitch_rad: float = 0.10
@@ -130,8 +131,17 @@ class WalkResult:
 class Walker:
     """Runs one walk; owns nothing but references (the world is closed by the caller)."""
 
-    def __init__(self, world: World, cfg: SimConfig, settings: WalkSettings, rng: np.random.Generator) -> None:
+    def __init__(
+        self, world: World, cfg: SimConfig, settings: WalkSettings, rng: np.random.Generator, *, scripted_exo: bool = True
+    ) -> None:
+        """``scripted_exo=False``: the patient alone; the exoskeleton's joints are commanded by
+        someone else (the emulated node boards) and the patient senses its steps from the plantar
+        forces, as a person in an exoskeleton feels a foot leave and reach the floor."""
         self.world, self.cfg, self.s, self.rng = world, cfg, settings, rng
+        self.scripted_exo = scripted_exo
+        # The patient starts the gait cycle (stick moves, lean) only while this is set; without the
+        # scripted exoskeleton, whoever hosts the patient sets it (the controller's gait state).
+        self.walking = scripted_exo
         self.kin = Kinematics(world)
         self.sensors = Sensors(world, cfg.sensors, rng)
         self.body = world.body
@@ -162,7 +172,8 @@ class Walker:
         self.margin = math.inf
         self.integral = np.zeros(2)
         self.residual = 0.0
-        self.last_reading = None
+        self.unloaded_s = {"l": 0.0, "r": 0.0}  # how long each foot has been off the floor (sensed)
+        self.fall: str | None = None
 
     # -- geometry helpers ----------------------------------------------------------------------
 
@@ -222,7 +233,7 @@ class Walker:
         self.phase_t += dt
         com = self.kin.com
         if self.phase is Phase.SETTLE:
-            if self.phase_t >= s.settle_s:
+            if self.phase_t >= s.settle_s and self.walking:
                 self._start_stick_moves()
             return
         if self.phase is Phase.SHIFT:
@@ -283,6 +294,9 @@ class Walker:
     # -- the exoskeleton's scripted gait -------------------------------------------------------
 
     def exo_update(self, reading) -> None:
+        if not self.scripted_exo:
+            self._sense_steps(reading)
+            return
         s = self.s
         plantar = reading.heel_force_n + reading.toe_force_n
         if self.phase is Phase.LEAN and self.swing_leg is None:
@@ -296,29 +310,54 @@ class Walker:
                 and abs(self.kin.com_velocity[0]) < 0.02 and all(plantar > s.foot_contact_n)
             )
             if leaned or stalled:
-                leg = self.next_swing
-                stance = OTHER[leg]
-                self.swing_leg = leg
-                self.stance_feet[leg] = False
-                self.swing_start = self.ankle_xy(leg)
-                self.swing_goal = np.array([self.ankle_xy(stance)[0] + s.step_length_m, self.swing_start[1]])
-                self.steps.append(StepRecord(index=len(self.steps), leg=leg, start_s=self.t))
-                self._set_phase(Phase.SWING)
+                self._start_swing(self.next_swing)
             return
         if self.phase is Phase.SWING and self.swing_leg is not None:
             leg = self.swing_leg
             down = plantar[SIDES.index(leg)] > s.foot_contact_n
             if (self.phase_t > 0.75 * s.swing_time_s and down) or self.phase_t > s.swing_time_s + 1.0:
-                record = self.steps[-1]
-                record.end_s, record.landed = self.t, bool(down)
-                self.stance_feet[leg] = True
-                self.swing_leg = None
-                self.next_swing = OTHER[leg]
-                # Load acceptance: the patient takes the CoM from where the landing left it (often
-                # ahead of the front foot, on the sticks) rather than snapping back to the target
-                # of the lean, which throws the body backward off the new support.
-                self.com_target = self.kin.com[:2].copy()
-                self._start_stick_moves()
+                self._land(bool(down))
+
+    def _start_swing(self, leg: str) -> None:
+        self.swing_leg = leg
+        self.stance_feet[leg] = False
+        self.swing_start = self.ankle_xy(leg)
+        self.swing_goal = np.array([self.ankle_xy(OTHER[leg])[0] + self.s.step_length_m, self.swing_start[1]])
+        self.steps.append(StepRecord(index=len(self.steps), leg=leg, start_s=self.t))
+        self._set_phase(Phase.SWING)
+
+    def _land(self, down: bool) -> None:
+        leg = self.swing_leg
+        record = self.steps[-1]
+        record.end_s, record.landed = self.t, down
+        self.stance_feet[leg] = True
+        self.swing_leg = None
+        self.next_swing = OTHER[leg]
+        # Load acceptance: the patient takes the CoM from where the landing left it (often
+        # ahead of the front foot, on the sticks) rather than snapping back to the target
+        # of the lean, which throws the body backward off the new support.
+        self.com_target = self.kin.com[:2].copy()
+        self._start_stick_moves()
+
+    def _sense_steps(self, reading) -> None:
+        """The patient's view of a step the exoskeleton makes: a foot that stays unloaded for
+        ``foot_lift_s`` has left the floor (a swing), and the swing ends when it carries load again."""
+        s = self.s
+        plantar = reading.heel_force_n + reading.toe_force_n
+        for i, side in enumerate(SIDES):
+            self.unloaded_s[side] = self.unloaded_s[side] + self.dt_control if plantar[i] < s.foot_contact_n else 0.0
+        if self.swing_leg is None:
+            lifted = [side for side in SIDES if self.unloaded_s[side] >= s.foot_lift_s]
+            if len(lifted) == 1 and self.phase is Phase.LEAN:
+                self.next_swing = lifted[0]
+                self._start_swing(lifted[0])
+            else:  # a foot lifted outside the patient's lean: balance on what is down, no step
+                for side in SIDES:
+                    self.stance_feet[side] = self.unloaded_s[side] < s.foot_lift_s
+                if not any(self.stance_feet.values()):
+                    self.stance_feet = {"l": True, "r": True}  # airborne: keep the model's legs
+        elif self.unloaded_s[self.swing_leg] == 0.0 and self.phase_t >= s.foot_lift_s:
+            self._land(True)
 
     def swing_target(self) -> np.ndarray:
         """Ankle (x, z) of the swing leg: lift, advance, descend (minimum-jerk blends)."""
@@ -387,8 +426,36 @@ class Walker:
             tau -= kin.point_jacobian(i, kin.link_com[i + 1]).T @ np.array([0.0, 0.0, w.masses[i + 1] * GRAVITY])
         for contact, f in zip(contacts, forces):
             tau -= kin.point_jacobian(contact.link, contact.point).T @ f
-        # Exoskeleton: node commands (mode, position, velocity ff, torque ff).
-        pitch = rpy[1]
+        if self.scripted_exo:
+            self._command_legs(reading, tau, g, trunk_origin, rpy[1])
+        # Patient: planted arms push (torque feed-forward), moving arms follow their tip path.
+        for side in SIDES:
+            joints = self.arm_joints[side]
+            names = [JOINT_ORDER[j] for j in joints]
+            if side in self.tip_path:
+                start, goal, u = self.tip_path[side]
+                point = start + (goal - start) * _minimum_jerk(u)
+                lift = 4 * min(u, 1.0) * (1 - min(u, 1.0)) * s.stick_lift_m
+                point = point + np.array([0.0, 0.0, lift - (0.02 if u >= 1.0 else 0.0) + self.cfg.model.sticks.tip_radius_m])
+                sign = 1.0 if side == "l" else -1.0
+                shoulder = trunk_origin + trunk_rot @ np.array([0.0, sign * self.body.shoulder_half_width_m, self.body.shoulder_above_hip_m])
+                try:
+                    q_arm = arm_ik(trunk_rot.T @ (point - shoulder), *self.body.arm_reach_m, side)
+                except ValueError:
+                    q_arm = tuple(w.q[j] for j in joints)
+                for name, j, qa in zip(names, joints, q_arm):
+                    n = w.arms.index(name)
+                    w.arms.command(n, Mode.TRACK, float(np.clip(qa, w.arms.lower[n] + 1e-3, w.arms.upper[n] - 1e-3)), 0.0,
+                                   float(np.clip(g[j], -w.arms.rated[n], w.arms.rated[n])))
+            else:
+                for name, j in zip(names, joints):
+                    n = w.arms.index(name)
+                    q_now = float(np.clip(w.q[j], w.arms.lower[n] + 1e-3, w.arms.upper[n] - 1e-3))
+                    w.arms.command(n, Mode.TRACK, q_now, 0.0, float(np.clip(tau[j], -w.arms.rated[n], w.arms.rated[n])))
+
+    def _command_legs(self, reading, tau: np.ndarray, g: np.ndarray, trunk_origin: np.ndarray, pitch: float) -> None:
+        """The scripted exoskeleton's node commands (mode, position, velocity ff, torque ff)."""
+        w, s = self.world, self.s
         hip_now = np.array([trunk_origin[0], trunk_origin[2]])
         step_xz = np.clip(self.hip_goal - hip_now, -s.hip_correction_m, s.hip_correction_m)
         for side in SIDES:
@@ -421,30 +488,6 @@ class Walker:
                 for n, target, torque in ((n_hip, targets[0], ff[0]), (n_knee, targets[1], ff[1])):
                     q_cmd = float(np.clip(target, w.exo.lower[n] + 1e-3, w.exo.upper[n] - 1e-3))
                     w.exo.command(n, Mode.TRACK, q_cmd, 0.0, float(np.clip(torque, -100.0, 100.0)))
-        # Patient: planted arms push (torque feed-forward), moving arms follow their tip path.
-        for side in SIDES:
-            joints = self.arm_joints[side]
-            names = [JOINT_ORDER[j] for j in joints]
-            if side in self.tip_path:
-                start, goal, u = self.tip_path[side]
-                point = start + (goal - start) * _minimum_jerk(u)
-                lift = 4 * min(u, 1.0) * (1 - min(u, 1.0)) * s.stick_lift_m
-                point = point + np.array([0.0, 0.0, lift - (0.02 if u >= 1.0 else 0.0) + self.cfg.model.sticks.tip_radius_m])
-                sign = 1.0 if side == "l" else -1.0
-                shoulder = trunk_origin + trunk_rot @ np.array([0.0, sign * self.body.shoulder_half_width_m, self.body.shoulder_above_hip_m])
-                try:
-                    q_arm = arm_ik(trunk_rot.T @ (point - shoulder), *self.body.arm_reach_m, side)
-                except ValueError:
-                    q_arm = tuple(w.q[j] for j in joints)
-                for name, j, qa in zip(names, joints, q_arm):
-                    n = w.arms.index(name)
-                    w.arms.command(n, Mode.TRACK, float(np.clip(qa, w.arms.lower[n] + 1e-3, w.arms.upper[n] - 1e-3)), 0.0,
-                                   float(np.clip(g[j], -w.arms.rated[n], w.arms.rated[n])))
-            else:
-                for name, j in zip(names, joints):
-                    n = w.arms.index(name)
-                    q_now = float(np.clip(w.q[j], w.arms.lower[n] + 1e-3, w.arms.upper[n] - 1e-3))
-                    w.arms.command(n, Mode.TRACK, q_now, 0.0, float(np.clip(tau[j], -w.arms.rated[n], w.arms.rated[n])))
 
     def _stance_targets(self, hip_i: int, knee_i: int, step_xz: np.ndarray, pitch: float) -> tuple[float, float]:
         """Hip and knee targets that move the hip by ``step_xz`` over a fixed ankle, trunk at its goal pitch."""
@@ -479,61 +522,80 @@ class Walker:
         poly = pivot_polygon(ankles, tip_xy, ankle_halfwidth=self.cfg.model.foot.half_width_m)
         return float(stability_margin(poly, com))
 
+    def start(self):
+        """Latch the initial posture as the targets; returns the first sensor reading."""
+        w = self.world
+        self.kin.update()
+        self.com_target = self.kin.com[:2].copy()
+        origin, rot = w.link_frame("trunk")
+        self.hip_goal = np.array([origin[0], origin[2]])
+        self.pitch_goal = float(rpy_from_matrix(rot)[1])
+        self.hip_height_nominal = float(origin[2])
+        return self.sensors.read()
+
+    def tick(self, reading):
+        """One 20 ms tick: the patient (and the scripted exoskeleton) act on ``reading``, the
+        physics advances, and the sensors are sampled again; returns the new reading."""
+        w = self.world
+        self.patient_update(reading)
+        self.exo_update(reading)
+        self.control(reading)
+        for _ in range(self.ticks_per_control):
+            w.step()
+        self.t += self.dt_control
+        self.kin.update()
+        margin = self._support_margin()
+        if self.steps and not self.steps[-1].landed:
+            rec = self.steps[-1]
+            rec.stick_force_sum_n += float(np.mean(reading.stick_force_n))
+            rec.arm_torque_sum_nm += float(np.sum(np.abs(w.arms.applied)))
+            rec.samples += 1
+            rec.min_margin_m = min(rec.min_margin_m, margin)
+        self.margin = margin
+        self.fall = self._fall_reason()
+        return self.sensors.read()
+
+    def _fall_reason(self) -> str | None:
+        """Ground truth: a link other than a foot or a stick touches the floor, or the trunk tilts
+        or sinks beyond the configured limits."""
+        w, fall = self.world, self.cfg.fall
+        origin, rot = w.link_frame("trunk")
+        rpy = rpy_from_matrix(rot)
+        touching = w.touching_links() - _ALLOWED_CONTACTS
+        if touching:
+            return f"{sorted(touching)[0]} touched the ground"
+        tilt = max(abs(rpy[0]), abs(rpy[1]))
+        if tilt > fall.tilt_limit_rad:
+            return f"trunk tilt {tilt:.2f} rad beyond {fall.tilt_limit_rad}"
+        if origin[2] < fall.min_hip_height_m:
+            return f"hip height {origin[2]:.2f} m below {fall.min_hip_height_m}"
+        return None
+
     def run(self, max_steps: int, max_time_s: float = 120.0, on_tick=None) -> WalkResult:
         """Walk until ``max_steps`` steps have landed, a fall, or ``max_time_s``.
 
         ``on_tick(world, t)`` is called after every control tick (recording, progress).
         """
-        w, s = self.world, self.s
-        self.kin.update()
-        self.com_target = self.kin.com[:2].copy()
-        origin = w.link_frame("trunk")[0]
-        self.hip_goal = np.array([origin[0], origin[2]])
-        self.pitch_goal = float(rpy_from_matrix(w.link_frame("trunk")[1])[1])
-        self.hip_height_nominal = float(origin[2])
-        fall = self.cfg.fall
-        result = WalkResult(mode=self.cfg.mode, step_length_m=s.step_length_m, seed=-1)
-        allowed = {"foot_l", "foot_r", "forearm_l", "forearm_r"}
+        result = WalkResult(mode=self.cfg.mode, step_length_m=self.s.step_length_m, seed=-1)
+        reading = self.start()
         while self.t < max_time_s:
-            self.kin.update()
-            reading = self.sensors.read()
-            self.patient_update(reading)
-            self.exo_update(reading)
-            self.control(reading)
-            for _ in range(self.ticks_per_control):
-                w.step()
-            self.t += self.dt_control
+            reading = self.tick(reading)
             if on_tick is not None:
-                on_tick(w, self.t)
-            self.kin.update()
-            margin = self._support_margin()
-            if self.steps and not self.steps[-1].landed:
-                rec = self.steps[-1]
-                rec.stick_force_sum_n += float(np.mean(reading.stick_force_n))
-                rec.arm_torque_sum_nm += float(np.sum(np.abs(w.arms.applied)))
-                rec.samples += 1
-                rec.min_margin_m = min(rec.min_margin_m, margin)
-            rpy = rpy_from_matrix(w.link_frame("trunk")[1])
-            hip_z = w.link_frame("trunk")[0][2]
-            touching = w.touching_links() - allowed
-            reason = None
-            if touching:
-                reason = f"{sorted(touching)[0]} touched the ground"
-            elif max(abs(rpy[0]), abs(rpy[1])) > fall.tilt_limit_rad:
-                reason = f"trunk tilt {max(abs(rpy[0]), abs(rpy[1])):.2f} rad beyond {fall.tilt_limit_rad}"
-            elif hip_z < fall.min_hip_height_m:
-                reason = f"hip height {hip_z:.2f} m below {fall.min_hip_height_m}"
-            if reason:
-                result.fell, result.fall_reason = True, reason
+                on_tick(self.world, self.t)
+            if self.fall:
+                result.fell, result.fall_reason = True, self.fall
                 result.fall_phase = self.phase.value
                 result.fall_step = len(self.steps)
-                result.fall_margin_m = round(margin, 4)
+                result.fall_margin_m = round(self.margin, 4)
                 break
             if sum(1 for r in self.steps if r.landed) >= max_steps:
                 break
         result.steps = self.steps
         result.duration_s = self.t
         return result
+
+
+_ALLOWED_CONTACTS = frozenset({"foot_l", "foot_r", "forearm_l", "forearm_r"})
 
 
 def _minimum_jerk(a: float) -> float:
