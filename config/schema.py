@@ -20,6 +20,7 @@ from typing import Literal
 
 from .loader import fail, field_spec
 from .controller_schema import ControllerConfig
+from .nodes_schema import NodesConfig
 from .sim_schema import SimConfig
 
 __all__ = ["SCHEMA_VERSION", "BusConfig", "Config", "ProtocolConfig"]
@@ -139,4 +140,7 @@ class Config:
     )
     sim: SimConfig | None = field_spec(
         doc="The simulated HHEA (model, physics, patient, sensors); absent on the robot.", default=None
+    )
+    nodes: NodesConfig | None = field_spec(
+        doc="The emulated node boards (watchdogs, fault injection); absent on the robot.", default=None
     )

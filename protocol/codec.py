@@ -276,3 +276,19 @@ class Codec:
                 if sig.choices is not None:
                     out[sig.name] = sig.choices[out[sig.name]]
         return out
+
+
+def with_raw_value(spec: MessageSpec, payload: bytes, signal: str, raw: int) -> bytes:
+    """``payload`` of ``spec`` with ``signal`` set to the raw integer ``raw`` and the CRC made good
+    again: what a sensor that has gone out of range sends (``raw`` may lie outside the DBC range
+    but must fit the signal's bits). For fault injection and tests; never used to send data."""
+    from protocol.crc import crc8
+
+    sig = spec.signal(signal)
+    if not sig.raw_min_representable <= raw <= sig.raw_max_representable:
+        raise EncodeError(f"{spec.name}.{signal}: raw {raw} does not fit in {sig.length} bits")
+    mask = (1 << sig.length) - 1
+    word = int.from_bytes(payload, "little")
+    word = (word & ~(mask << sig.start)) | ((raw & mask) << sig.start)
+    data = word.to_bytes(len(payload), "little")
+    return bytes((crc8(spec.crc_seed, data[1:]),)) + data[1:]

@@ -455,7 +455,7 @@ def test_overrides_of_entries_and_tuples():
         ({"bus.chanel": "vcan0"}, "<overrides>: bus.chanel: unknown key; expected one of: "
          "bitrate_bit_s, channel, interface, receive_own_messages (did you mean 'channel'?)"),
         ({"bsu.channel": "vcan0"}, "<overrides>: bsu: unknown key; expected one of: "
-         "bus, controller, protocol, schema_version, sim (did you mean 'bus'?)"),
+         "bus, controller, nodes, protocol, schema_version, sim (did you mean 'bus'?)"),
         ({"bus.interface": "socketcan", "bus.channel": "my bus"}, "<overrides>: bus.channel: "
          "'my bus' is not a valid Linux interface name for socketcan "
          "(1 to 15 characters from A-Z a-z 0-9 _ . -)"),

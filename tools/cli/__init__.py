@@ -22,6 +22,7 @@ SUBCOMMANDS = {
     "bench": "tools.cli.bench",
     "sim": "tools.cli.sim",
     "dmp": "tools.cli.dmp",
+    "nodes": "tools.cli.nodes",
 }
 
 

@@ -1,0 +1,87 @@
+"""Schema of the ``nodes`` section: the emulated node boards' watchdogs and their fault injection."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from .loader import fail, field_spec
+
+NODE_NAMES = ("LEFT_HIP", "LEFT_KNEE", "RIGHT_HIP", "RIGHT_KNEE")
+
+#: Faults that act on one of the node's messages (and need ``message``).
+MESSAGE_FAULTS = ("drop", "delay", "duplicate", "corrupt", "out_of_range")
+
+
+@dataclass(frozen=True, kw_only=True)
+class FaultConfig:
+    """One injected fault of one node, active over a range of ticks.
+
+    Kinds: ``drop``, ``delay`` (by ``delay_ticks``), ``duplicate`` or ``corrupt`` (one bit flipped,
+    so its CRC fails) a message the node sends, with ``probability`` per frame; ``out_of_range``: a
+    sensor signal of the message carries ``value`` (raw grid, beyond its DBC range) under a good
+    CRC; ``freeze``: the node's application stops, its last frames are re-sent unchanged (same
+    counters) and commands are no longer applied; ``stuck_encoder``: the joint's reported position
+    stays at its value when the fault starts; ``reboot``: the node restarts once at ``start_tick``
+    (boot-up, pre-operational, counters from 0); ``drive_fault``: the drive reports an over-current
+    fault (EMCY, quick stop, latched until the controller's fault reset).
+    """
+
+    kind: Literal[
+        "drop", "delay", "duplicate", "corrupt", "out_of_range", "freeze", "stuck_encoder", "reboot", "drive_fault"
+    ] = field_spec(doc="What goes wrong (see the class doc).")
+    node: Literal["LEFT_HIP", "LEFT_KNEE", "RIGHT_HIP", "RIGHT_KNEE"] = field_spec(doc="The node it happens to.")
+    start_tick: int = field_spec(doc="First tick (SYNC tick number) with the fault.", min=0, max=2**28 - 1)
+    end_tick: int | None = field_spec(
+        doc="First tick without it (absent: until the process ends).", min=1, max=2**28, default=None
+    )
+    message: str | None = field_spec(
+        doc="Message the fault acts on (drop, delay, duplicate, corrupt, out_of_range): one the node sends.",
+        default=None,
+    )
+    signal: str | None = field_spec(doc="out_of_range: the signal of ``message`` that goes out of range.", default=None)
+    value: float | None = field_spec(
+        doc="out_of_range: the physical value sent (beyond the signal's range, within its bits).", default=None
+    )
+    probability: float = field_spec(doc="Chance per frame for drop, duplicate and corrupt.", min=0.0, max=1.0, default=1.0)
+    delay_ticks: int = field_spec(doc="delay: how many ticks a frame is held back.", min=1, max=50, default=1)
+
+    def validate(self) -> None:
+        if self.end_tick is not None and self.end_tick <= self.start_tick:
+            fail("end_tick", f"must be after start_tick {self.start_tick}")
+        if self.kind in MESSAGE_FAULTS and not self.message:
+            fail("message", f"a {self.kind} fault needs the message it acts on")
+        if self.kind not in MESSAGE_FAULTS and self.message:
+            fail("message", f"a {self.kind} fault acts on the whole node, not on a message")
+        if self.kind == "out_of_range" and (self.signal is None or self.value is None):
+            fail("signal" if self.signal is None else "value", "an out_of_range fault needs signal and value")
+
+
+@dataclass(frozen=True, kw_only=True)
+class NodesConfig:
+    """The four emulated node boards (CANopen-style firmware, FAULTS.md)."""
+
+    command_timeout_ticks: int = field_spec(
+        doc=(
+            "Command watchdog: an operational node that receives no valid joint command for this many "
+            "consecutive ticks quick-stops and stays (holds its measured position), sends EMCY and waits for "
+            "the controller's fault reset. Hard bound 5 (100 ms)."
+        ),
+        min=1,
+        max=5,
+    )
+    heartbeat_timeout_ms: int = field_spec(
+        doc=(
+            "Heartbeat consumer time: no controller heartbeat for this long is the same fault as the command "
+            "watchdog (CiA 301 practice: three producer periods of 100 ms)."
+        ),
+        unit="ms",
+        min=120,
+        max=1000,
+    )
+    status_interval_s: float = field_spec(
+        doc="Seconds between the one-line status reports of `aider-exo nodes`.", unit="s", min=0.1, max=60.0, default=1.0
+    )
+    faults: dict[str, FaultConfig] = field_spec(
+        doc="Injected faults by name; none by default (tests and fault drills add them).", default_factory=dict
+    )

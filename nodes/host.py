@@ -1,0 +1,400 @@
+"""One process hosting the simulated HHEA and the four node boards that drive it over CAN.
+
+The host owns the bus connection, the simulation (the PyBullet world and the patient inside it)
+and four :class:`~nodes.firmware.NodeFirmware`. It speaks only CAN through :mod:`protocol`:
+
+* every received frame goes through one :class:`~protocol.e2e.Receiver` (CRC, counter and length
+  errors are counted and ignored), then to the firmware it concerns: NMT commands, joint
+  commands, the controller's heartbeat (whose gait state also tells the patient when to walk);
+* per SYNC each node applies its newest valid command to its joint through the simulation's
+  actuation interface, and sends its status and the sensors it carries, with alive counters and
+  CRCs, as the DBC assigns them (the left hip board carries the trunk IMU and the left stick, the
+  knee boards the plantar sensors);
+* timing: in lock-step each SYNC first advances the physics by exactly one 20 ms tick, so a run
+  is deterministic and as fast as the CPU allows; in real time the physics is paced by the clock
+  (one tick per 20 ms, re-aligned after an overrun, never caught up in a burst) and a SYNC samples
+  the newest state.
+
+Heartbeats follow the node's time: the SYNC tick in lock-step, its own timer in real time.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+import can
+import numpy as np
+
+from config import Config
+from config.loader import AiderError
+from nodes.faults import FaultInjector
+from nodes.firmware import ERR_CURRENT, ERR_GENERIC, DriveCommand, JointLimits, NodeFirmware
+from protocol.catalog import TICK_MS, MessageSpec
+from protocol.clock import Clock, MonotonicClock
+from protocol.codec import Codec, Decoded
+from protocol.e2e import Receiver, Transmitter
+from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
+from protocol.errors import EncodeError
+from sim.actuation import Mode
+from sim.model import EXO_JOINTS
+from sim.sensors import Reading
+from sim.walk import Walker, WalkSettings, initial_pose
+from sim.world import World
+
+NODES = ("LEFT_HIP", "LEFT_KNEE", "RIGHT_HIP", "RIGHT_KNEE")
+TICK_NS = TICK_MS * 1_000_000
+#: gait states in which the patient walks (moves the sticks and leans); otherwise the patient stands
+WALKING_STATES = frozenset({GaitState.DOUBLE_SUPPORT, GaitState.SWING_LEFT, GaitState.SWING_RIGHT})
+
+
+_NMT_SHORT = {"BOOT_UP": "boot", "PRE_OPERATIONAL": "preop", "OPERATIONAL": "op", "STOPPED": "stopped"}
+
+
+class NodesError(AiderError):
+    """The nodes process cannot run (no simulation section, bad fault configuration)."""
+
+
+@dataclass
+class NodePort:
+    """One node board's identity on the bus and its firmware."""
+
+    name: str
+    node_id: int
+    joint: int  # index into the exoskeleton's joints (sim.model.EXO_JOINTS)
+    side: int  # 0 left, 1 right
+    firmware: NodeFirmware
+    tx: Transmitter
+    heartbeat: MessageSpec
+    emcy: MessageSpec
+    cyclic: tuple[MessageSpec, ...]  # status and sensors, sent per SYNC when operational
+    stale: dict[int, bytes] = field(default_factory=dict)  # last payload per frame ID (a frozen node re-sends it)
+    stuck_position: float | None = None
+
+
+@dataclass
+class HostStats:
+    syncs: int = 0
+    physics_ticks: int = 0
+    overruns: int = 0
+    frames_sent: int = 0
+    send_failures: int = 0
+    saturated: Counter[str] = field(default_factory=Counter)  # sensor values clipped to their full scale
+
+
+class NodesHost:
+    """The simulation and four node boards on one bus (see the module doc)."""
+
+    def __init__(
+        self, cfg: Config, bus: can.BusABC, *, lockstep: bool, seed: int = 0, gui: bool = False,
+        clock: Clock | None = None, codec: Codec | None = None,
+    ) -> None:
+        if cfg.sim is None or cfg.nodes is None:
+            raise NodesError("the configuration needs a sim and a nodes section to emulate the nodes")
+        self.cfg, self.bus, self.lockstep = cfg, bus, lockstep
+        self.clock = clock or MonotonicClock()
+        self.codec = codec or Codec()
+        catalog = self.codec.catalog
+        self.rx = Receiver(self.codec, max_delta_counter=cfg.protocol.max_delta_counter)
+        self.stats = HostStats()
+        seeds = np.random.SeedSequence(seed).spawn(2)
+        self.faults = FaultInjector(cfg.nodes.faults, catalog, np.random.default_rng(seeds[1]))
+        sim_cfg = cfg.sim
+        self.world = World(sim_cfg, gui=gui)
+        try:
+            self.world.place(initial_pose(sim_cfg))
+            self.patient = Walker(self.world, sim_cfg, WalkSettings(), np.random.default_rng(seeds[0]), scripted_exo=False)
+            self.reading: Reading = self.patient.start()
+        except Exception:
+            self.world.close()
+            raise
+        joints = sim_cfg.model.joints
+        self.ports: dict[str, NodePort] = {}
+        for node in NODES:
+            joint = EXO_JOINTS.index(("hip_" if node.endswith("HIP") else "knee_") + ("l" if node.startswith("LEFT") else "r"))
+            spec = joints.hip if node.endswith("HIP") else joints.knee
+            limits = JointLimits(spec.lower_rad, spec.upper_rad, spec.velocity_limit_rad_s, spec.torque_limit_nm)
+            sent = catalog.sent_by(node)
+            self.ports[node] = NodePort(
+                name=node,
+                node_id=catalog.node_ids[node],
+                joint=joint,
+                side=0 if node.startswith("LEFT") else 1,
+                firmware=NodeFirmware(
+                    node, limits, command_timeout_ticks=cfg.nodes.command_timeout_ticks,
+                    heartbeat_timeout_ms=cfg.nodes.heartbeat_timeout_ms,
+                ),
+                tx=Transmitter(self.codec),
+                heartbeat=next(m for m in sent if m.family == "HEARTBEAT"),
+                emcy=next(m for m in sent if m.family == "EMCY"),
+                cyclic=tuple(m for m in sent if m.is_cyclic and m.family != "HEARTBEAT"),
+            )
+        self._port_of_command = {
+            m.frame_id: self.ports[m.receivers[0]] for m in catalog.messages if m.family == "JOINT_COMMAND"
+        }
+        self._by_id = {p.node_id: p for p in self.ports.values()}
+        self.start_ns = self.clock.now_ns()
+        self.own_tick = -1  # real time: the node's own tick counter
+        self.last_sync_tick = -1
+        self.gait_state: GaitState | None = None
+
+    # -- lifecycle -------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        self.world.close()
+
+    def now_ms(self) -> float:
+        return (self.clock.now_ns() - self.start_ns) / 1e6
+
+    def _node_time_ms(self, tick: int) -> float:
+        return tick * TICK_MS if self.lockstep else self.now_ms()
+
+    def boot(self) -> None:
+        """Every node sends its boot-up message (after power-on or a reset)."""
+        for port in self.ports.values():
+            self._send_boot_up(port)
+
+    def _send_boot_up(self, port: NodePort) -> None:
+        port.firmware.boot_up_pending = False
+        self._send(port, port.heartbeat, (int(NmtState.BOOT_UP),), tick=max(self.last_sync_tick, 0))
+
+    def _reboot(self, port: NodePort) -> None:
+        port.firmware.boot()
+        port.tx.reset()
+        port.stale.clear()
+        port.stuck_position = None
+        self._send_boot_up(port)
+
+    # -- receive ---------------------------------------------------------------------------------
+
+    def handle(self, msg: can.Message) -> None:
+        """One received frame (any frame: foreign, corrupt or our own are counted and ignored)."""
+        result = self.rx.receive(msg)
+        if type(result) is not Decoded:
+            return
+        spec, values = result.message, result.values
+        family = spec.family
+        if family == "SYNC":
+            self.on_sync(values.tick)
+        elif family == "JOINT_COMMAND":
+            port = self._port_of_command[spec.frame_id]
+            if not self.faults.frozen(port.name, self.last_sync_tick + 1):
+                port.firmware.on_command(*values)
+        elif family == "CONTROLLER_HEARTBEAT":
+            now = self._node_time_ms(self.last_sync_tick)
+            for port in self.ports.values():
+                port.firmware.on_controller_heartbeat(now)
+            self.gait_state = GaitState(values.gait_state)
+            self.patient.walking = self.gait_state in WALKING_STATES
+        elif family == "NMT_COMMAND":
+            targets = self.ports.values() if values.node_id == 0 else [self._by_id.get(values.node_id)]
+            now = self._node_time_ms(self.last_sync_tick)
+            for port in targets:
+                if port is None:
+                    continue  # addressed to a node we do not emulate
+                command = NmtCommand(values.command)
+                if command in (NmtCommand.RESET_NODE, NmtCommand.RESET_COMMUNICATION):
+                    self._reboot(port)
+                else:
+                    port.firmware.on_nmt(command, now)
+                    self._send_emcys(port, max(self.last_sync_tick, 0))
+
+    # -- the tick --------------------------------------------------------------------------------
+
+    def on_sync(self, tick: int) -> None:
+        """A SYNC: apply commands; in lock-step advance the physics one tick; report."""
+        self.stats.syncs += 1
+        self.last_sync_tick = tick
+        for port in self.ports.values():
+            if self.faults.starting(port.name, "reboot", tick):
+                self._reboot(port)
+            if self.faults.starting(port.name, "drive_fault", tick):
+                port.firmware.raise_fault(NodeError.OVER_CURRENT, EmcyCode.OVER_CURRENT, ERR_GENERIC | ERR_CURRENT, 0)
+            if self.faults.frozen(port.name, tick):
+                continue  # a frozen application neither watches nor applies commands
+            if self.lockstep:
+                port.firmware.on_tick(tick * TICK_MS)
+            self._apply(port, port.firmware.on_sync())
+        if self.lockstep:
+            self._physics_tick()
+            self._heartbeats(tick)
+        self._report(tick)
+
+    def on_timer(self) -> None:
+        """Real time: the nodes' own 20 ms tick (physics, watchdogs, heartbeats)."""
+        self.own_tick += 1
+        now = self.now_ms()
+        for port in self.ports.values():
+            if not self.faults.frozen(port.name, self.last_sync_tick):
+                port.firmware.on_tick(now)
+                self._apply(port, port.firmware.drive_command())
+        self._physics_tick()
+        self._heartbeats(self.own_tick)
+        for port in self.ports.values():
+            self._send_emcys(port, self.own_tick)
+
+    def _physics_tick(self) -> None:
+        self.reading = self.patient.tick(self.reading)
+        self.stats.physics_ticks += 1
+
+    def _apply(self, port: NodePort, cmd: DriveCommand) -> None:
+        exo = self.world.exo
+        q = float(self.reading.joint_position_rad[port.joint])
+        # The joint interface checks again at its boundary (and counts what it rejects).
+        if cmd.mode == JointMode.TRACK:
+            exo.command(port.joint, Mode.TRACK, cmd.position_rad, cmd.velocity_rad_s, cmd.torque_nm, cmd.torque_limit_nm)
+        else:  # hold and quick stop hold the measured position (latched by the drive loop)
+            q = min(max(q, exo.lower[port.joint]), exo.upper[port.joint])
+            exo.command(port.joint, Mode(int(cmd.mode)), q, 0.0, 0.0, min(cmd.torque_limit_nm, exo.rated[port.joint]))
+
+    # -- transmit --------------------------------------------------------------------------------
+
+    def _heartbeats(self, tick: int) -> None:
+        for port in self.ports.values():
+            if port.heartbeat.sent_in_tick(tick):
+                self._send(port, port.heartbeat, (int(port.firmware.state),), tick)
+
+    def _send_emcys(self, port: NodePort, tick: int) -> None:
+        fw = port.firmware
+        while fw.emcy:
+            e = fw.emcy.pop(0)
+            self._send(port, port.emcy, (int(e.code), e.error_register, e.detail), tick)
+
+    def _report(self, tick: int) -> None:
+        for spec, payload in self.faults.due(tick):
+            self._transmit(spec, payload)
+        for port in self.ports.values():
+            if self.faults.frozen(port.name, tick):
+                for spec in port.cyclic:  # the same bytes again: counters and CRCs of the last frames
+                    if spec.frame_id in port.stale and port.firmware.state == NmtState.OPERATIONAL:
+                        self._transmit(spec, port.stale[spec.frame_id])
+                continue
+            self._send_emcys(port, tick)
+            if port.firmware.state != NmtState.OPERATIONAL:
+                continue
+            stuck = self.faults.stuck_encoder(port.name, tick)
+            if stuck and port.stuck_position is None:
+                port.stuck_position = float(self.reading.joint_position_rad[port.joint])
+            elif not stuck:
+                port.stuck_position = None
+            for spec in port.cyclic:
+                self._send(port, spec, self._values(port, spec), tick)
+
+    def _values(self, port: NodePort, spec: MessageSpec) -> tuple[Any, ...]:
+        r, j, side = self.reading, port.joint, port.side
+        family = spec.family
+        if family == "JOINT_STATUS":
+            fw = port.firmware
+            q = r.joint_position_rad[j] if port.stuck_position is None else port.stuck_position
+            raw = (int(fw.drive_state), int(fw.error), q, r.joint_velocity_rad_s[j], r.joint_torque_nm[j])
+        elif family == "STICK":
+            raw = (r.stick_force_n[side], *r.stick_rpy_rad[side])
+        elif family == "PLANTAR":
+            raw = (r.heel_force_n[side], r.toe_force_n[side])
+        elif family == "TRUNK_IMU_ORIENTATION":
+            raw = tuple(r.trunk_rpy_rad)
+        elif family == "TRUNK_IMU_RATE":
+            raw = tuple(r.trunk_rate_rad_s)
+        elif family == "TRUNK_IMU_ACCEL":
+            raw = tuple(r.trunk_specific_force_m_s2)
+        else:
+            raise NodesError(f"{spec.name}: no sensor source for message family {family}")
+        out = []
+        for sig, value in zip(spec.signals, raw):
+            if sig.choices is None:
+                value = float(value)
+                if not sig.minimum <= value <= sig.maximum:  # the sensor saturates at its full scale
+                    self.stats.saturated[f"{spec.name}.{sig.name}"] += 1
+                    value = min(max(value, sig.minimum), sig.maximum)
+            out.append(value)
+        return tuple(out)
+
+    def _send(self, port: NodePort, spec: MessageSpec, values: tuple[Any, ...], tick: int) -> None:
+        try:
+            payload = port.tx.payload(spec, values)
+        except EncodeError as exc:  # a non-finite sensor value: the frame is not sent (the controller sees it missing)
+            self.stats.saturated[f"{spec.name}: {exc}"] += 1
+            return
+        port.stale[spec.frame_id] = payload
+        for data in self.faults.outgoing(port.name, spec, payload, tick):
+            self._transmit(spec, data)
+
+    def _transmit(self, spec: MessageSpec, data: bytes) -> None:
+        try:
+            self.bus.send(can.Message(arbitration_id=spec.frame_id, data=data, is_extended_id=False, check=False))
+            self.stats.frames_sent += 1
+        except can.CanError:
+            self.stats.send_failures += 1
+
+    # -- the loop --------------------------------------------------------------------------------
+
+    def poll(self, timeout_s: float) -> bool:
+        """Handle every frame that arrives within ``timeout_s`` (then whatever is queued); real time
+        also runs the nodes' timer. Returns whether a frame was handled."""
+        handled = False
+        deadline = self.clock.now_ns() + int(timeout_s * 1e9)
+        while True:
+            now = self.clock.now_ns()
+            wait_until = deadline
+            if not self.lockstep:
+                next_tick = self.start_ns + (self.own_tick + 1) * TICK_NS
+                if now >= next_tick:
+                    late_ticks = (now - next_tick) // TICK_NS
+                    if late_ticks:  # overrun: re-align to the next boundary, no burst of late ticks
+                        self.stats.overruns += 1
+                        self.own_tick += int(late_ticks)
+                    self.on_timer()
+                    continue
+                wait_until = min(deadline, next_tick)
+            msg = self.bus.recv(timeout=max(0.0, (wait_until - now) / 1e9))
+            if msg is not None:
+                self.handle(msg)
+                handled = True
+                continue
+            if self.clock.now_ns() >= deadline:
+                return handled
+
+    def status(self) -> dict[str, Any]:
+        """Machine-readable state (the one-line status is made from it)."""
+        fall = self.patient.fall
+        return {
+            "mode": "lockstep" if self.lockstep else "realtime",
+            "sim_mode": self.cfg.sim.mode if self.cfg.sim else None,
+            "sim_time_s": round(self.patient.t, 3),
+            "last_sync_tick": self.last_sync_tick,
+            "nodes": {
+                p.name: {
+                    "nmt": NmtState(p.firmware.state).name,
+                    "drive": DriveState(p.firmware.drive_state).name,
+                    "error": p.firmware.error.name,
+                    "clamped": p.firmware.clamped,
+                    "ignored": p.firmware.ignored,
+                    "boots": p.firmware.boots,
+                }
+                for p in self.ports.values()
+            },
+            "frames_sent": self.stats.frames_sent,
+            "send_failures": self.stats.send_failures,
+            "syncs": self.stats.syncs,
+            "physics_ticks": self.stats.physics_ticks,
+            "overruns": self.stats.overruns,
+            "receiver": self.rx.stats.as_dict(),
+            "faults_injected": dict(self.faults.counts),
+            "sensor_saturations": dict(self.stats.saturated),
+            "fall": fall,
+        }
+
+    def status_line(self) -> str:
+        s = self.status()
+        nodes = " ".join(
+            f"{n[0]}{n.split('_')[1][0]}:{_NMT_SHORT[v['nmt']]}/{v['drive']}" + (f"!{v['error']}" if v["error"] != "NONE" else "")
+            for n, v in s["nodes"].items()
+        )
+        rx = s["receiver"]
+        return (
+            f"nodes {s['mode']} tick {s['last_sync_tick']} sim {s['sim_time_s']:.1f} s | {nodes} | "
+            f"rx {rx['accepted']} ok {rx['rejected']} rejected | tx {s['frames_sent']}"
+            + (f" | fall: {s['fall']}" if s["fall"] else "")
+        )
+

@@ -1,0 +1,353 @@
+"""The emulated nodes on the virtual bus, driven by scripted CAN frames written here (no controller).
+
+Each test plays the controller by hand: it sends NMT, SYNC, joint commands and heartbeats through
+our codec on a python-can virtual bus, lets the lock-step host handle them, and checks what comes
+back on the bus, decoded by an independent receiver.
+"""
+
+from __future__ import annotations
+
+import can
+import numpy as np
+import pytest
+
+from config import default_config_path, load_config, with_overrides
+from nodes.host import NodesHost
+from protocol.codec import Codec, Decoded, RejectReason, Rejection
+from protocol.e2e import Receiver, Transmitter
+from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
+
+BASE = load_config(default_config_path())
+JOINTS = ("LH", "LK", "RH", "RK")
+NODE_IDS = {"LEFT_HIP": 1, "LEFT_KNEE": 2, "RIGHT_HIP": 3, "RIGHT_KNEE": 4}
+
+
+class ScriptedController:
+    """The controller's side of the bus, by hand."""
+
+    def __init__(self, channel: str, faults: dict | None = None, seed: int = 1) -> None:
+        overrides = {"bus.channel": channel}
+        if faults:
+            overrides["nodes.faults"] = faults
+        cfg = with_overrides(BASE, overrides)
+        self.bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
+        self.node_bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
+        self.codec = Codec()
+        self.tx = Transmitter(self.codec)
+        self.rx = Receiver(self.codec, max_delta_counter=1)
+        self.host = NodesHost(cfg, self.node_bus, lockstep=True, seed=seed)
+        self.tick = -1
+        self.hold = {j: None for j in JOINTS}
+        self.host.boot()
+        self.boot_frames = self.frames()
+
+    def close(self) -> None:
+        self.host.close()
+        self.node_bus.shutdown()
+        self.bus.shutdown()
+
+    def send(self, name: str, **values) -> None:
+        self.bus.send(self.tx.message(name, values))
+        self.host.poll(0.0)
+
+    def send_raw(self, frame_id: int, data: bytes) -> None:
+        self.bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+        self.host.poll(0.0)
+
+    def frames(self) -> list[tuple[can.Message, Decoded | Rejection]]:
+        out = []
+        while (msg := self.bus.recv(timeout=0)) is not None:
+            out.append((msg, self.rx.receive(msg)))
+        return out
+
+    def nmt(self, command: NmtCommand, node_id: int = 0) -> list:
+        self.send("NMT_COMMAND", command=int(command), node_id=node_id)
+        return self.frames()
+
+    def command(self, joint: str, mode: JointMode, position: float = 0.0, torque_limit: float = 100.0) -> None:
+        self.send(f"JOINT_COMMAND_{joint}", mode=int(mode), position_setpoint_rad=round(position, 4),
+                  velocity_ff_rad_s=0.0, torque_ff_Nm=0.0, torque_limit_Nm=torque_limit)
+
+    def sync(self, *, commands: bool = True, heartbeat: bool = True, track: dict | None = None) -> dict:
+        """SYNC of the next tick; returns what came back (name -> list of results). Then, as a
+        controller does, its heartbeat (every 5th tick) and one command per joint (hold, or track
+        the positions in ``track``)."""
+        self.tick += 1
+        self.send("SYNC", tick=self.tick)
+        got: dict[str, list] = {}
+        for msg, result in self.frames():  # by message name, accepted or not
+            got.setdefault(self.codec.spec(msg.arbitration_id).name, []).append((msg, result))
+        if heartbeat and self.tick % 5 == 0:
+            self.send("CONTROLLER_HEARTBEAT", gait_state=int(GaitState.STAND))
+        if commands:
+            for j in JOINTS:
+                if track and j in track:
+                    self.command(j, JointMode.TRACK, track[j])
+                else:
+                    self.command(j, JointMode.HOLD, 0.0, 80.0)
+        return got
+
+    def start(self) -> None:
+        self.nmt(NmtCommand.START)
+
+
+@pytest.fixture
+def ctl(request):
+    c = ScriptedController(f"nodes-{request.node.name}")
+    yield c
+    c.close()
+
+
+def values(got: dict, name: str):
+    """The values of the frames of ``name`` that the controller's receiver accepted."""
+    return [r.values for _, r in got.get(name, []) if isinstance(r, Decoded)]
+
+
+def stateless(got: dict, name: str):
+    """The values of every frame of ``name`` whose CRC and ranges are good, whatever its counter
+    (as a receiver sees a node that has just rebooted)."""
+    return [d.values for d in (Codec().decode(m.arbitration_id, m.data) for m, _ in got.get(name, [])) if isinstance(d, Decoded)]
+
+
+def test_boot_up_then_pre_operational_heartbeats_then_operational(ctl):
+    boot = [r.values.nmt_state for _, r in ctl.boot_frames]
+    assert sorted(r.name for _, r in ctl.boot_frames) == ["HEARTBEAT_LH", "HEARTBEAT_LK", "HEARTBEAT_RH", "HEARTBEAT_RK"]
+    assert boot == [NmtState.BOOT_UP] * 4
+    beats: dict[str, list[int]] = {}
+    for k in range(10):
+        got = ctl.sync(commands=False)
+        assert not any(n.startswith("JOINT_STATUS") for n in got), "no status before START"
+        for name, results in got.items():
+            if name.startswith("HEARTBEAT"):
+                beats.setdefault(name, []).extend(k for _ in results)
+                assert all(v.nmt_state == NmtState.PRE_OPERATIONAL for v in values(got, name))
+    # Every 100 ms (5 ticks), each node in its own tick phase (1..4).
+    assert beats == {"HEARTBEAT_LH": [1, 6], "HEARTBEAT_LK": [2, 7], "HEARTBEAT_RH": [3, 8], "HEARTBEAT_RK": [4, 9]}
+    ctl.start()
+    states = {}
+    for _ in range(5):
+        got = ctl.sync()
+        for name in got:
+            if name.startswith("HEARTBEAT"):
+                states[name] = values(got, name)[-1].nmt_state
+    assert set(states.values()) == {NmtState.OPERATIONAL} and len(states) == 4
+
+
+def test_one_status_per_sync_with_consecutive_counters_and_good_crcs(ctl):
+    ctl.start()
+    per_tick = []
+    for _ in range(40):
+        got = ctl.sync()
+        per_tick.append({n: len(r) for n, r in got.items() if not n.startswith("HEARTBEAT")})
+    expected = {f"JOINT_STATUS_{j}": 1 for j in JOINTS} | {
+        "STICK_LEFT": 1, "STICK_RIGHT": 1, "PLANTAR_LEFT": 1, "PLANTAR_RIGHT": 1,
+        "TRUNK_IMU_ORIENTATION": 1, "TRUNK_IMU_RATE": 1, "TRUNK_IMU_ACCEL": 1,
+    }
+    assert all(t == expected for t in per_tick)
+    # max_delta_counter=1: any lost, repeated or out-of-order counter, or bad CRC, would be rejected.
+    assert ctl.rx.stats.rejected_total == 0 and ctl.rx.stats.lost == 0
+    assert ctl.rx.stats.accepted == 40 * 11 + 4 * 8 + 4  # statuses, heartbeats, boot-ups
+
+
+def test_standing_sensors_are_plausible(ctl):
+    ctl.start()
+    for _ in range(30):
+        got = ctl.sync()
+    sticks = sum(v.force_N for n in ("STICK_LEFT", "STICK_RIGHT") for v in values(got, n))
+    plantar = sum(v.heel_force_N + v.toe_force_N for n in ("PLANTAR_LEFT", "PLANTAR_RIGHT") for v in values(got, n))
+    weight = ctl.host.world.total_mass * 9.81
+    assert 0.9 * weight < sticks + plantar < 1.1 * weight
+    accel = values(got, "TRUNK_IMU_ACCEL")[0]
+    assert np.linalg.norm([accel.specific_force_x_m_s2, accel.specific_force_y_m_s2, accel.specific_force_z_m_s2]) == pytest.approx(9.81, abs=0.3)
+    assert values(got, "JOINT_STATUS_LK")[0].drive_state == DriveState.HOLD
+
+
+def test_a_commanded_joint_motion_shows_up_in_the_encoder(ctl):
+    ctl.start()
+    got = ctl.sync()
+    q0 = values(got, "JOINT_STATUS_LK")[0].position_rad
+    seen = []
+    for k in range(40):
+        target = q0 + 0.15 * min(k / 20, 1.0)
+        got = ctl.sync(track={"LK": target})
+        status = values(got, "JOINT_STATUS_LK")[0]
+        seen.append(status.position_rad)
+    assert status.drive_state == DriveState.TRACK
+    assert seen[-1] == pytest.approx(q0 + 0.15, abs=0.01)
+    assert seen[-1] == pytest.approx(ctl.host.world.q[ctl.host.world.joint_index["knee_l"]], abs=4e-4)  # encoder resolution
+    assert all(b >= a - 2e-3 for a, b in zip(seen, seen[1:]))  # it moved the way it was told
+
+
+def test_watchdog_quick_stops_within_4_ticks_of_the_last_command_sends_emcy_and_holds(ctl):
+    ctl.start()
+    for _ in range(10):
+        ctl.sync()
+    last_command_tick = ctl.tick  # the commands sent after this SYNC are the last
+    q = ctl.host.world.q[ctl.host.world._exo_idx].copy()
+    fault_tick, emcys = None, []
+    for _ in range(30):
+        got = ctl.sync(commands=False)
+        emcys += [(ctl.tick, n, v.emcy_code) for n in got if n.startswith("EMCY") for v in values(got, n)]
+        states = {j: values(got, f"JOINT_STATUS_{j}")[0].drive_state for j in JOINTS}
+        if fault_tick is None and all(s == DriveState.FAULT for s in states.values()):
+            fault_tick = ctl.tick
+    assert fault_tick is not None and fault_tick - last_command_tick <= 4
+    assert sorted(n for _, n, _ in emcys) == ["EMCY_LH", "EMCY_LK", "EMCY_RH", "EMCY_RK"]  # exactly one each
+    assert all(code == EmcyCode.COMMAND_TIMEOUT and t == fault_tick for t, _, code in emcys)
+    assert values(got, "JOINT_STATUS_RK")[0].error_code == NodeError.COMMAND_TIMEOUT
+    # Quick stop and stay: the joints hold where they were, and the HHEA still stands.
+    assert np.abs(ctl.host.world.q[ctl.host.world._exo_idx] - q).max() < 0.02
+    assert ctl.host.patient.fall is None
+
+
+def test_lost_controller_heartbeat_faults_the_nodes(ctl):
+    ctl.start()
+    for _ in range(30):
+        got = ctl.sync(heartbeat=False)
+    assert values(got, "JOINT_STATUS_LH")[0].error_code == NodeError.HEARTBEAT_LOST
+
+
+def test_fault_reset_brings_the_nodes_back_under_command(ctl):
+    ctl.start()
+    for _ in range(3):
+        ctl.sync()
+    for _ in range(6):
+        ctl.sync(commands=False)
+    assert values(ctl.sync(), "JOINT_STATUS_LH")[0].drive_state == DriveState.FAULT
+    frames = ctl.nmt(NmtCommand.FAULT_RESET)
+    assert sorted((r.name, r.values.emcy_code) for _, r in frames) == [
+        (f"EMCY_{j}", EmcyCode.NO_ERROR) for j in JOINTS
+    ]
+    got = ctl.sync()
+    assert values(got, "JOINT_STATUS_LH")[0].drive_state == DriveState.HOLD
+    q0 = values(got, "JOINT_STATUS_LK")[0].position_rad
+    for _ in range(20):
+        got = ctl.sync(track={"LK": q0 + 0.05})
+    status = values(got, "JOINT_STATUS_LK")[0]
+    assert status.drive_state == DriveState.TRACK and status.error_code == NodeError.NONE
+    assert status.position_rad == pytest.approx(q0 + 0.05, abs=0.01)
+
+
+def test_reset_of_one_node_reboots_it_alone(ctl):
+    ctl.start()
+    ctl.sync()
+    frames = ctl.nmt(NmtCommand.RESET_NODE, node_id=NODE_IDS["RIGHT_KNEE"])
+    decoded = [ctl.codec.decode(m.arbitration_id, m.data) for m, _ in frames]
+    assert [(d.name, d.values.nmt_state, d.counter) for d in decoded] == [("HEARTBEAT_RK", NmtState.BOOT_UP, 0)]
+    got = ctl.sync()
+    assert "JOINT_STATUS_RK" not in got and "JOINT_STATUS_LK" in got
+
+
+def test_commands_beyond_the_joint_limits_are_clamped_and_reported(ctl):
+    ctl.start()
+    ctl.sync()
+    ctl.command("LK", JointMode.TRACK, 2.5)  # knee limit 2.0 rad; the protocol allows up to pi
+    got = ctl.sync(commands=False)
+    assert [v.emcy_code for v in values(got, "EMCY_LK")] == [EmcyCode.POSITION_LIMIT]
+    assert values(got, "EMCY_LK")[0].error_register == 0
+    assert ctl.host.world.exo.target[1] == pytest.approx(2.0)
+    assert ctl.host.ports["LEFT_KNEE"].firmware.clamped == 1
+
+
+def test_invalid_command_frames_are_counted_and_ignored(ctl):
+    ctl.start()
+    got = ctl.sync()
+    q0 = values(got, "JOINT_STATUS_LH")[0].position_rad
+    spec = ctl.codec.spec("JOINT_COMMAND_LH")
+    good = ctl.tx.payload(spec, (int(JointMode.TRACK), round(q0 + 0.3, 4), 0.0, 0.0, 100.0))
+    before = ctl.host.rx.stats.rejected_total
+    ctl.send_raw(spec.frame_id, bytes([good[0] ^ 0xFF]) + good[1:])  # CRC
+    ctl.send_raw(spec.frame_id, good[:5])  # DLC
+    ctl.send_raw(spec.frame_id, good)  # fine, but then the same counter again:
+    ctl.send_raw(spec.frame_id, good)
+    reasons = ctl.host.rx.stats.rejected
+    assert ctl.host.rx.stats.rejected_total - before == 3
+    assert reasons[RejectReason.BAD_CRC] == 1 and reasons[RejectReason.WRONG_DLC] == 1 and reasons[RejectReason.REPEATED] == 1
+    assert ctl.host.ports["LEFT_HIP"].firmware.pending.position_rad == pytest.approx(q0 + 0.3, abs=1e-4)
+
+
+# -- injected faults, each visible on the bus ------------------------------------------------------
+
+def run_with(request, faults: dict, ticks: int = 20, **sync) -> tuple[ScriptedController, list[dict]]:
+    c = ScriptedController(f"nodes-{request.node.name}", faults=faults)
+    request.addfinalizer(c.close)
+    c.start()
+    return c, [c.sync(**sync) for _ in range(ticks)]
+
+
+def test_fault_drop(request):
+    _, ticks = run_with(request, {"d": {"kind": "drop", "node": "LEFT_KNEE", "message": "JOINT_STATUS_LK", "start_tick": 5, "end_tick": 8}})
+    present = [k for k, got in enumerate(ticks) if "JOINT_STATUS_LK" in got]
+    assert present == [k for k in range(20) if not 5 <= k < 8]
+    assert all("PLANTAR_LEFT" in got for got in ticks)
+
+
+def test_fault_delay(request):
+    c, ticks = run_with(request, {"d": {"kind": "delay", "node": "LEFT_HIP", "message": "STICK_LEFT", "start_tick": 5, "end_tick": 6, "delay_ticks": 2}})
+    counts = [len(got.get("STICK_LEFT", [])) for got in ticks]
+    assert counts[4:8] == [1, 0, 1, 2]  # tick 5's frame arrives with tick 7's, out of sequence
+    assert c.rx.stats.rejected[RejectReason.WRONG_SEQUENCE] >= 1
+
+
+def test_fault_duplicate(request):
+    c, ticks = run_with(request, {"d": {"kind": "duplicate", "node": "RIGHT_HIP", "message": "JOINT_STATUS_RH", "start_tick": 5, "end_tick": 6}})
+    (m1, r1), (m2, r2) = ticks[5]["JOINT_STATUS_RH"]
+    assert m1.data == m2.data and isinstance(r1, Decoded) and r2.reason == RejectReason.REPEATED
+    assert c.rx.stats.rejected[RejectReason.REPEATED] == 1
+
+
+def test_fault_corrupt(request):
+    c, _ = run_with(request, {"d": {"kind": "corrupt", "node": "RIGHT_KNEE", "message": "PLANTAR_RIGHT", "start_tick": 5, "end_tick": 7}})
+    assert c.rx.stats.rejected[RejectReason.BAD_CRC] == 2
+
+
+def test_fault_sensor_out_of_range(request):
+    c, ticks = run_with(request, {"d": {"kind": "out_of_range", "node": "LEFT_HIP", "message": "JOINT_STATUS_LH", "signal": "position_rad", "value": 3.2, "start_tick": 5, "end_tick": 6}})
+    assert values(ticks[5], "JOINT_STATUS_LH") == [] and len(values(ticks[6], "JOINT_STATUS_LH")) == 1
+    assert c.rx.stats.rejected[RejectReason.OUT_OF_RANGE] == 1 and c.rx.stats.rejected[RejectReason.BAD_CRC] == 0
+
+
+def test_fault_freeze_resends_stale_frames_and_stops_applying_commands(request):
+    c, ticks = run_with(request, {"d": {"kind": "freeze", "node": "LEFT_KNEE", "start_tick": 5, "end_tick": 10}}, ticks=5)
+    last = ticks[-1]["JOINT_STATUS_LK"][0][0].data
+    q_before = c.host.world.exo.target[1]
+    frozen = [c.sync(track={"LK": 0.6}) for _ in range(5)]
+    for got in frozen:  # the tick-4 frame again, and again: same counter, same CRC
+        (msg, result), = got["JOINT_STATUS_LK"]
+        assert msg.data == last and isinstance(result, Rejection) and result.reason == RejectReason.REPEATED
+        assert "HEARTBEAT_LK" not in got or c.tick % 5 != 2  # its heartbeat is frozen too
+    assert c.rx.stats.rejected[RejectReason.REPEATED] == 5 * 2  # status and plantar, ticks 5..9
+    assert c.host.world.exo.target[1] == q_before  # the 0.6 rad commands were not applied
+    after = c.sync(track={"LK": 0.6})
+    assert len(values(after, "JOINT_STATUS_LK")) == 1  # counters resume where they stopped
+
+
+def test_fault_stuck_encoder(request):
+    c, ticks = run_with(request, {"d": {"kind": "stuck_encoder", "node": "RIGHT_KNEE", "start_tick": 5}}, ticks=5)
+    q0 = values(ticks[-1], "JOINT_STATUS_RK")[0].position_rad
+    for _ in range(25):
+        got = c.sync(track={"RK": q0 + 0.1})
+    assert values(got, "JOINT_STATUS_RK")[0].position_rad == pytest.approx(q0, abs=2e-3)  # the encoder says it did not move
+    assert c.host.world.q[c.host.world.joint_index["knee_r"]] == pytest.approx(q0 + 0.1, abs=0.02)  # the joint did
+
+
+def test_fault_reboot(request):
+    c, ticks = run_with(request, {"d": {"kind": "reboot", "node": "LEFT_HIP", "start_tick": 5}}, ticks=10)
+    assert [v.nmt_state for v in stateless(ticks[5], "HEARTBEAT_LH")] == [NmtState.BOOT_UP]
+    assert all("JOINT_STATUS_LH" not in got for got in ticks[5:]) and all("JOINT_STATUS_LK" in got for got in ticks[5:])
+    assert [v.nmt_state for v in stateless(ticks[6], "HEARTBEAT_LH")] == [NmtState.PRE_OPERATIONAL]
+
+
+def test_fault_drive(request):
+    c, ticks = run_with(request, {"d": {"kind": "drive_fault", "node": "RIGHT_HIP", "start_tick": 5}}, ticks=12)
+    assert [v.emcy_code for v in values(ticks[5], "EMCY_RH")] == [EmcyCode.OVER_CURRENT]
+    status = values(ticks[-1], "JOINT_STATUS_RH")[0]
+    assert status.drive_state == DriveState.FAULT and status.error_code == NodeError.OVER_CURRENT
+    assert values(ticks[-1], "JOINT_STATUS_LH")[0].drive_state == DriveState.HOLD
+
+
+def test_fault_configuration_errors_name_the_key():
+    from nodes.faults import FaultConfigError
+
+    with pytest.raises(FaultConfigError, match=r"nodes.faults.x.message: STICK_LEFT is sent by LEFT_HIP, not LEFT_KNEE"):
+        ScriptedController("nodes-badfault", faults={"x": {"kind": "drop", "node": "LEFT_KNEE", "message": "STICK_LEFT", "start_tick": 1}})
