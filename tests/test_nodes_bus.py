@@ -351,3 +351,17 @@ def test_fault_configuration_errors_name_the_key():
 
     with pytest.raises(FaultConfigError, match=r"nodes.faults.x.message: STICK_LEFT is sent by LEFT_HIP, not LEFT_KNEE"):
         ScriptedController("nodes-badfault", faults={"x": {"kind": "drop", "node": "LEFT_KNEE", "message": "STICK_LEFT", "start_tick": 1}})
+
+
+def test_the_nodes_benchmark_pipeline_exchanges_every_frame():
+    """``aider-exo bench nodes`` measures a real exchange (figures are printed, never asserted)."""
+    import argparse
+
+    from tools.bench import nodes as bench
+
+    result = bench.run(argparse.Namespace(config=None, ticks=10))
+    for mode in result["modes"]:
+        assert mode["rejected_by_nodes"] == 0 and not mode["fell"]
+        # 4 boot-ups, 11 status and sensor frames per tick, the heartbeats of ticks 1..4 and 6..9
+        assert mode["frames_from_nodes"] == 4 + 10 * 11 + 8
+    assert set(bench.format_text(result).splitlines()[1].split()) >= {"ticks/s", "overhead"}

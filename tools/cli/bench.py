@@ -12,6 +12,7 @@ BENCHMARKS = {
     "codec": "tools.bench.codec",
     "sim": "tools.bench.sim",
     "algorithms": "tools.bench.algorithms",
+    "nodes": "tools.bench.nodes",
 }
 
 
