@@ -365,3 +365,40 @@ def test_the_nodes_benchmark_pipeline_exchanges_every_frame():
         # 4 boot-ups, 11 status and sensor frames per tick, the heartbeats of ticks 1..4 and 6..9
         assert mode["frames_from_nodes"] == 4 + 10 * 11 + 8
     assert set(bench.format_text(result).splitlines()[1].split()) >= {"ticks/s", "overhead"}
+
+
+def test_real_time_mode_paces_physics_by_the_clock_and_samples_at_sync():
+    from protocol.clock import ManualClock
+
+    clock = ManualClock()
+    cfg = with_overrides(BASE, {"bus.channel": "nodes-realtime"})
+    with can.Bus(interface="virtual", channel="nodes-realtime", ignore_config=True) as ctl_bus, \
+            can.Bus(interface="virtual", channel="nodes-realtime", ignore_config=True) as node_bus:
+        host = NodesHost(cfg, node_bus, lockstep=False, seed=1, clock=clock)
+        try:
+            tx, rx = Transmitter(host.codec), Receiver(Codec())
+            host.boot()
+            host.poll(0.0)
+            assert host.stats.physics_ticks == 1  # tick 0 is due at start
+            clock.advance(10_000_000)  # half a tick: nothing due
+            host.poll(0.0)
+            assert host.stats.physics_ticks == 1
+            clock.advance(10_000_000)
+            host.poll(0.0)
+            assert host.stats.physics_ticks == 2
+            # A SYNC samples the newest state; it does not advance the physics.
+            ctl_bus.send(tx.message("NMT_COMMAND", {"command": int(NmtCommand.START), "node_id": 0}))
+            ctl_bus.send(tx.message("SYNC", {"tick": 7}))
+            host.poll(0.0)
+            assert host.stats.physics_ticks == 2 and host.stats.syncs == 1
+            names = []
+            while (m := ctl_bus.recv(timeout=0)) is not None:
+                r = rx.receive(m)
+                names.append(r.name)
+            assert names.count("JOINT_STATUS_LK") == 1 and "TRUNK_IMU_RATE" in names
+            # Five ticks late at once: one tick runs and the rest are skipped, counted as an overrun.
+            clock.advance(5 * 20_000_000)
+            host.poll(0.0)
+            assert host.stats.physics_ticks == 3 and host.stats.overruns == 1
+        finally:
+            host.close()
