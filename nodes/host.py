@@ -252,8 +252,14 @@ class NodesHost:
 
     def _heartbeats(self, tick: int) -> None:
         for port in self.ports.values():
-            if port.heartbeat.sent_in_tick(tick):
-                self._send(port, port.heartbeat, (int(port.firmware.state),), tick)
+            if not port.heartbeat.sent_in_tick(tick):
+                continue
+            if self.faults.frozen(port.name, max(self.last_sync_tick, 0)):
+                stale = port.stale.get(port.heartbeat.frame_id)
+                if stale is not None:  # a frozen application's heartbeat: the same bytes again
+                    self._transmit(port.heartbeat, stale)
+                continue
+            self._send(port, port.heartbeat, (int(port.firmware.state),), tick)
 
     def _send_emcys(self, port: NodePort, tick: int) -> None:
         fw = port.firmware

@@ -310,13 +310,15 @@ def test_fault_sensor_out_of_range(request):
 def test_fault_freeze_resends_stale_frames_and_stops_applying_commands(request):
     c, ticks = run_with(request, {"d": {"kind": "freeze", "node": "LEFT_KNEE", "start_tick": 5, "end_tick": 10}}, ticks=5)
     last = ticks[-1]["JOINT_STATUS_LK"][0][0].data
+    heartbeat = ticks[2]["HEARTBEAT_LK"][0][0].data
     q_before = c.host.world.exo.target[1]
     frozen = [c.sync(track={"LK": 0.6}) for _ in range(5)]
     for got in frozen:  # the tick-4 frame again, and again: same counter, same CRC
         (msg, result), = got["JOINT_STATUS_LK"]
         assert msg.data == last and isinstance(result, Rejection) and result.reason == RejectReason.REPEATED
-        assert "HEARTBEAT_LK" not in got or c.tick % 5 != 2  # its heartbeat is frozen too
-    assert c.rx.stats.rejected[RejectReason.REPEATED] == 5 * 2  # status and plantar, ticks 5..9
+        if c.tick % 5 == 2:  # its heartbeat is frozen too: tick 2's bytes again
+            assert [m.data for m, _ in got["HEARTBEAT_LK"]] == [heartbeat]
+    assert c.rx.stats.rejected[RejectReason.REPEATED] == 5 * 2 + 1  # status and plantar, ticks 5..9; a heartbeat
     assert c.host.world.exo.target[1] == q_before  # the 0.6 rad commands were not applied
     after = c.sync(track={"LK": 0.6})
     assert len(values(after, "JOINT_STATUS_LK")) == 1  # counters resume where they stopped
@@ -402,3 +404,30 @@ def test_real_time_mode_paces_physics_by_the_clock_and_samples_at_sync():
             assert host.stats.physics_ticks == 3 and host.stats.overruns == 1
         finally:
             host.close()
+
+
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_the_nodes_process_reports_status_and_exits_cleanly_on_a_signal(signame):
+    import json
+    import signal
+    import subprocess
+    import sys
+
+    from tests.conftest import ROOT
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "nodes", "--json", "--channel", f"nodes-signal-{signame}"],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        for line in proc.stderr:  # the first one-line status means it is up
+            if line.startswith("nodes realtime"):
+                break
+        proc.send_signal(getattr(signal, signame))
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0
+    final = json.loads(out)
+    assert final["stopped_by"] == signame and final["mode"] == "realtime"
+    assert {n["nmt"] for n in final["nodes"].values()} == {"PRE_OPERATIONAL"} and final["fall"] is None

@@ -1,4 +1,4 @@
-"""Over a real SocketCAN vcan0, in separate processes: ``aider-exo nodes`` runs, can-utils'
+"""Over a real SocketCAN vcan0, in separate processes: ``aider-exo nodes`` (the console script) runs, can-utils'
 ``candump`` records boot-up, heartbeats and the per-SYNC status, and frames sent one by one with
 ``cansend`` (payloads made by our codec, CRCs and counters included) move a joint.
 
@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import can
 import pytest
@@ -42,7 +43,7 @@ def test_nodes_process_over_vcan0_seen_by_candump_and_driven_by_cansend(vcan0, t
     log = tmp_path / "candump.log"
     dump = subprocess.Popen(["candump", "-L", vcan0], stdout=log.open("w"), stderr=subprocess.PIPE)
     nodes = subprocess.Popen(
-        [sys.executable, "-m", "nodes", "--bus", "socketcan", "--channel", vcan0, "--lockstep", "--json", "--quiet", "--seed", "3"],
+        [str(Path(sys.executable).with_name("aider-exo")), "nodes", "--bus", "socketcan", "--channel", vcan0, "--lockstep", "--json", "--quiet", "--seed", "3"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     codec = Codec()
