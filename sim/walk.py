@@ -383,7 +383,8 @@ class Walker:
         # the stance height as far as every stance foot can reach.
         dt = self.dt_control
         want_x = trunk_origin[0] + (self.com_target[0] - com[0])
-        self.hip_goal[0] += np.clip(want_x - self.hip_goal[0], -s.hip_speed_m_s * dt, s.hip_speed_m_s * dt)
+        back = s.shift_speed_m_s if self.phase is Phase.SHIFT else s.hip_speed_m_s
+        self.hip_goal[0] += np.clip(want_x - self.hip_goal[0], -back * dt, s.hip_speed_m_s * dt)
         reach = min(
             math.sqrt(max(s.leg_reach_m**2 - (self.hip_goal[0] - self.ankle_xy(f)[0]) ** 2, 0.05)) for f in feet
         )

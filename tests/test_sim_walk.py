@@ -37,9 +37,9 @@ def test_a_short_step_walks_in_the_plane_without_falling():
 
 def test_a_lean_that_stalls_past_the_stance_foot_starts_the_step():
     # At 0.16 m the trailing leg goes straight before the lean reaches its goal (docs/SIM.md item 12).
-    stuck = walk(SIM, WalkSettings(step_length_m=0.16, stalled_lean_s=1e9), seed=3, max_steps=6, max_time_s=25.0)
+    stuck = walk(SIM, WalkSettings(step_length_m=0.16, stalled_lean_s=1e9), seed=5, max_steps=6, max_time_s=25.0)
     assert not stuck.fell and stuck.steps_completed < 6  # waits for good
-    result = walk(SIM, WalkSettings(step_length_m=0.16), seed=3, max_steps=6, max_time_s=40.0)
+    result = walk(SIM, WalkSettings(step_length_m=0.16), seed=5, max_steps=6, max_time_s=40.0)
     assert not result.fell and result.steps_completed == 6
 
 
