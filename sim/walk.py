@@ -85,7 +85,10 @@ class WalkSettings:
 
 @dataclass
 class StepRecord:
-    """One exoskeleton step (one swing), from the end of the previous swing to foot contact."""
+    """One step of the gait: from the previous foot contact (the start of the walk for the first
+    step) through the patient's stick moves and lean and the exoskeleton's swing to this step's
+    foot contact. Its means are the paper's per-step cost (equation (10): the stick force
+    integrated over the step, divided by its duration)."""
 
     index: int
     leg: str
@@ -96,6 +99,12 @@ class StepRecord:
     samples: int = 0
     min_margin_m: float = math.inf
     landed: bool = False
+
+    def add(self, stick_force_n: float, arm_torque_nm: float, margin_m: float) -> None:
+        self.stick_force_sum_n += stick_force_n
+        self.arm_torque_sum_nm += arm_torque_nm
+        self.samples += 1
+        self.min_margin_m = min(self.min_margin_m, margin_m)
 
     @property
     def mean_stick_force_n(self) -> float:
@@ -169,6 +178,7 @@ class Walker:
         self.stance_feet = {"l": True, "r": True}
         self.lean_goal_x = 0.0
         self.steps: list[StepRecord] = []
+        self._next_step = StepRecord(index=-1, leg="", start_s=0.0)  # the step in the making, until its swing starts
         self.margin = math.inf
         self.integral = np.zeros(2)
         self.residual = 0.0
@@ -323,13 +333,14 @@ class Walker:
         self.stance_feet[leg] = False
         self.swing_start = self.ankle_xy(leg)
         self.swing_goal = np.array([self.ankle_xy(OTHER[leg])[0] + self.s.step_length_m, self.swing_start[1]])
-        self.steps.append(StepRecord(index=len(self.steps), leg=leg, start_s=self.t))
+        self.steps.append(dataclasses.replace(self._next_step, index=len(self.steps), leg=leg))
         self._set_phase(Phase.SWING)
 
     def _land(self, down: bool) -> None:
         leg = self.swing_leg
         record = self.steps[-1]
         record.end_s, record.landed = self.t, down
+        self._next_step = StepRecord(index=-1, leg="", start_s=self.t)
         self.stance_feet[leg] = True
         self.swing_leg = None
         self.next_swing = OTHER[leg]
@@ -546,12 +557,8 @@ class Walker:
         self.t += self.dt_control
         self.kin.update()
         margin = self._support_margin()
-        if self.steps and not self.steps[-1].landed:
-            rec = self.steps[-1]
-            rec.stick_force_sum_n += float(np.mean(reading.stick_force_n))
-            rec.arm_torque_sum_nm += float(np.sum(np.abs(w.arms.applied)))
-            rec.samples += 1
-            rec.min_margin_m = min(rec.min_margin_m, margin)
+        step = self.steps[-1] if self.steps and not self.steps[-1].landed else self._next_step
+        step.add(float(np.mean(reading.stick_force_n)), float(np.sum(np.abs(w.arms.applied))), margin)
         self.margin = margin
         self.fall = self._fall_reason()
         return self.sensors.read()
