@@ -88,8 +88,26 @@ class LearningConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class EnvelopeConfig:
+    """The safety envelope every joint command passes before it is encoded (FAULTS.md I1).
+
+    A value beyond the envelope is clamped and reported; beyond it by more than the excess
+    allowance it is a fault (a wrong trajectory is not hidden by saturation)."""
+
+    position_margin_rad: float = field_spec(doc="Keep-out band inside each joint limit.", unit="rad", min=0.0, max=0.3)
+    max_velocity_rad_s: float = field_spec(doc="Largest commanded joint speed (feed-forward).", unit="rad/s", min=0.1, max=10.0)
+    max_step_rad: float = field_spec(doc="Largest change of a position setpoint from one tick to the next.", unit="rad", min=0.001, max=0.5)
+    max_torque_nm: float = field_spec(doc="Largest torque feed-forward and torque limit sent.", unit="N.m", min=1.0, max=200.0)
+    position_excess_rad: float = field_spec(doc="A setpoint this far beyond the envelope is a fault.", unit="rad", min=0.0, max=1.0)
+    rate_excess_factor: float = field_spec(
+        doc="A speed, setpoint step or torque this many times its bound is a fault (FAULTS.md F17: 1.2).", min=1.0, max=5.0
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
 class ControllerConfig:
     legs: LegConfig = field_spec(doc="Exoskeleton leg geometry and joint limits.")
     swing: SwingConfig = field_spec(doc="The DMP swing generator.")
     step: StepConfig = field_spec(doc="Step length and its safety clamp.")
     learning: LearningConfig = field_spec(doc="Online learning of the step-length compensation.")
+    envelope: EnvelopeConfig = field_spec(doc="The safety envelope of every joint command.")
