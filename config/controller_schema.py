@@ -88,6 +88,52 @@ class LearningConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class BodyConfig:
+    """The patient in the exoskeleton as the controller models it (from the fitting session): what
+    the state estimator needs to place the stick tips and the centre of mass from the sensors.
+
+    Frames as the exoskeleton's: x forward, y left, z up, in the trunk (backpack IMU) frame with its
+    origin midway between the hip joints. The patient's arm is a 2-DOF shoulder and an elbow whose
+    axis is the forearm's y axis; the stick is rigid with the forearm (a forearm crutch's cuff).
+    Masses include the exoskeleton's segments."""
+
+    hip_half_width_m: float = field_spec(doc="Hip joint from the trunk midline.", unit="m", min=0.03, max=0.3)
+    shoulder_xyz_m: tuple[float, float, float] = field_spec(
+        doc="Left shoulder joint from the hip midpoint (x, y, z; the right one mirrored).", unit="m", min=-1.0, max=1.5
+    )
+    upper_arm_m: float = field_spec(doc="Shoulder to elbow.", unit="m", min=0.15, max=0.5)
+    elbow_to_tip_m: float = field_spec(doc="Elbow to the centre of the stick's tip.", unit="m", min=0.5, max=2.0)
+    tip_radius_m: float = field_spec(doc="Radius of the stick's rubber tip.", unit="m", min=0.0, max=0.05)
+    elbow_min_rad: float = field_spec(doc="Elbow flexion range, lower end.", unit="rad", min=-0.5, max=3.0)
+    elbow_max_rad: float = field_spec(doc="Elbow flexion range, upper end.", unit="rad", min=0.0, max=3.0)
+    foot_heel_m: float = field_spec(doc="Heel behind the ankle joint.", unit="m", min=0.0, max=0.2)
+    foot_toe_m: float = field_spec(doc="Toe ahead of the ankle joint.", unit="m", min=0.05, max=0.35)
+    foot_half_width_m: float = field_spec(doc="Half the sole's width.", unit="m", min=0.02, max=0.1)
+    trunk_kg: float = field_spec(doc="Trunk, head and arms' share carried by the trunk, with the backpack.", unit="kg", min=5.0, max=200.0)
+    trunk_com_xz_m: tuple[float, float] = field_spec(doc="Trunk CoM from the hip midpoint (x, z).", unit="m", min=-0.5, max=1.0)
+    thigh_kg: float = field_spec(doc="One thigh with its exoskeleton segment.", unit="kg", min=1.0, max=40.0)
+    thigh_com_m: float = field_spec(doc="Thigh CoM below the hip joint, along the thigh.", unit="m", min=0.0, max=0.7)
+    shank_kg: float = field_spec(doc="One shank with its exoskeleton segment.", unit="kg", min=0.5, max=30.0)
+    shank_com_m: float = field_spec(doc="Shank CoM below the knee, along the shank.", unit="m", min=0.0, max=0.7)
+    foot_kg: float = field_spec(doc="One foot with its shoe and plate.", unit="kg", min=0.2, max=10.0)
+    foot_com_xz_m: tuple[float, float] = field_spec(doc="Foot CoM from the ankle (x, z), foot flat.", unit="m", min=-0.3, max=0.3)
+    upper_arm_kg: float = field_spec(doc="One upper arm.", unit="kg", min=0.2, max=10.0)
+    upper_arm_com_m: float = field_spec(doc="Upper arm CoM from the shoulder.", unit="m", min=0.0, max=0.5)
+    forearm_kg: float = field_spec(doc="One forearm, hand and stick.", unit="kg", min=0.2, max=10.0)
+    forearm_com_m: float = field_spec(doc="Forearm-and-stick CoM from the elbow.", unit="m", min=0.0, max=1.5)
+    stick_loaded_n: float = field_spec(doc="A stick carrying more than this is on the ground.", unit="N", min=1.0, max=500.0)
+    foot_loaded_n: float = field_spec(doc="A foot whose heel and toe carry more than this is on the ground.", unit="N", min=1.0, max=800.0)
+    min_support_m: float = field_spec(
+        doc="X_CoM/X_SP is undefined (nan) for a support polygon shorter than this fore-aft (feet side by side).",
+        unit="m", min=0.01, max=0.5,
+    )
+
+    def validate(self) -> None:
+        if self.elbow_min_rad >= self.elbow_max_rad:
+            fail("elbow_min_rad", "must be below elbow_max_rad")
+
+
+@dataclass(frozen=True, kw_only=True)
 class EnvelopeConfig:
     """The safety envelope every joint command passes before it is encoded (FAULTS.md I1).
 
@@ -111,3 +157,4 @@ class ControllerConfig:
     step: StepConfig = field_spec(doc="Step length and its safety clamp.")
     learning: LearningConfig = field_spec(doc="Online learning of the step-length compensation.")
     envelope: EnvelopeConfig = field_spec(doc="The safety envelope of every joint command.")
+    body: BodyConfig = field_spec(doc="The patient-plus-exoskeleton model of the state estimator.")
