@@ -1,0 +1,106 @@
+"""The controller's tick loop on a bus: read (drain, bounded), update (:class:`ControllerCore`),
+write; lock-step, behind the one clock abstraction.
+
+Lock-step: tick ``k`` sends SYNC(k), then waits until every operational node's JOINT_STATUS of the
+tick is in (at most ``tick_timeout_s``; a node that does not answer is counted, and the core's
+lost-node supervision makes it a fault after ``lost_ticks``), runs the core and sends its commands
+and, on the DBC's schedule, the controller's heartbeat. Before the nodes are operational a tick
+waits ``boot_wait_s`` for frames. ``pump`` lets an in-process peer (the emulated nodes) run
+between the controller's sends and receives; across processes it is None.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import can
+
+from controller.core import NODES, ControllerCore, TickResult
+from controller.timing import TickStats
+from protocol.catalog import TICK_MS
+from protocol.clock import Clock, MonotonicClock
+from protocol.codec import Codec, Decoded
+from protocol.e2e import Receiver, Transmitter
+from protocol.enums import NmtState
+
+
+@dataclass
+class LoopReport:
+    ticks: int = 0
+    timeouts: int = 0  # ticks whose node frames were not all in within the timeout
+    frames_sent: int = 0
+    send_failures: int = 0
+    drained_max: int = 0  # most frames read in one tick
+    events: list[str] = field(default_factory=list)
+
+
+class LockstepLoop:
+    def __init__(
+        self, core: ControllerCore, bus: can.BusABC, *, codec: Codec | None = None, max_delta_counter: int = 2,
+        tick_timeout_s: float = 2.0, boot_wait_s: float = 0.05, max_frames_per_tick: int = 200,
+        pump: Callable[[], object] | None = None, clock: Clock | None = None,
+    ) -> None:
+        self.core, self.bus = core, bus
+        self.codec = codec or Codec()
+        self.rx = Receiver(self.codec, max_delta_counter=max_delta_counter)
+        self.tx = Transmitter(self.codec)
+        self.tick_timeout_s, self.boot_wait_s = tick_timeout_s, boot_wait_s
+        self.max_frames = max_frames_per_tick
+        self.pump = pump
+        self.clock = clock or MonotonicClock()
+        self.heartbeat = self.codec.spec("CONTROLLER_HEARTBEAT")
+        self.stats = TickStats(TICK_MS * 1_000_000)
+        self.report = LoopReport()
+        self.tick = -1
+        self._status_ids = {self.codec.spec(f"JOINT_STATUS_{s}").frame_id: n for n, s in
+                            zip(NODES, ("LH", "LK", "RH", "RK"))}
+
+    def _send(self, name: str, values: tuple) -> None:
+        try:
+            self.bus.send(self.tx.message(name, values))
+            self.report.frames_sent += 1
+        except can.CanError:
+            self.report.send_failures += 1
+
+    def _drain(self, tick: int, until_ns: int, expected: set[str]) -> None:
+        """Read this tick's frames until every expected node has reported or the deadline."""
+        got: set[str] = set()
+        read = 0
+        while read < self.max_frames:
+            if self.pump is not None:
+                self.pump()
+            remaining = (until_ns - self.clock.now_ns()) / 1e9
+            msg = self.bus.recv(timeout=max(0.0, remaining) if self.pump is None else 0.0)
+            if msg is None:
+                if expected <= got or remaining <= 0:
+                    break
+                continue
+            read += 1
+            result = self.rx.receive(msg)
+            if type(result) is Decoded and result.message.sender != "CONTROLLER":
+                self.core.receive(result, tick)
+                node = self._status_ids.get(result.message.frame_id)
+                if node is not None:
+                    got.add(node)
+        self.report.drained_max = max(self.report.drained_max, read)
+        if not expected <= got:
+            self.report.timeouts += 1
+
+    def step(self) -> TickResult:
+        self.tick += 1
+        k = self.tick
+        start = self.clock.now_ns()
+        self._send("SYNC", (k,))
+        expected = {n for n, s in self.core.nodes.items() if s.nmt == NmtState.OPERATIONAL}
+        wait = self.tick_timeout_s if expected else self.boot_wait_s
+        self._drain(k, start + int(wait * 1e9), expected)
+        result = self.core.tick(k)
+        for name, values in result.frames:
+            self._send(name, values)
+        if self.heartbeat.sent_in_tick(k):
+            self._send("CONTROLLER_HEARTBEAT", (int(result.state),))
+        self.report.events += [f"tick {k}: {e}" for e in result.events]
+        self.report.ticks += 1
+        self.stats.record(0, self.clock.now_ns() - start)
+        return result
