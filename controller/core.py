@@ -42,6 +42,7 @@ class NodeState:
     status: Any = None  # the newest JOINT_STATUS values
     status_tick: int = -1  # the tick it arrived in
     was_operational: bool = False
+    operational_since: int = -1  # the tick its heartbeat first said OPERATIONAL
 
 
 @dataclass
@@ -94,7 +95,8 @@ class ControllerCore:
             elif node.was_operational and state != NmtState.OPERATIONAL:
                 self.pending_faults.append(f"NODE_NOT_OPERATIONAL({sender})")
             node.nmt = state
-            node.was_operational = node.was_operational or state == NmtState.OPERATIONAL
+            if state == NmtState.OPERATIONAL and not node.was_operational:
+                node.was_operational, node.operational_since = True, tick
         elif family == "EMCY":
             if v.error_register != 0:
                 self.pending_faults.append(f"EMCY {v.emcy_code:#06x} from {sender}")
@@ -138,7 +140,7 @@ class ControllerCore:
         operational = all(n.nmt == NmtState.OPERATIONAL for n in self.nodes.values())
         ages = [tick - n.status_tick if n.status is not None else 10**9 for n in self.nodes.values()]
         for name, node in self.nodes.items():
-            if node.was_operational and tick - node.status_tick >= self.lost_ticks:
+            if node.was_operational and tick - max(node.status_tick, node.operational_since) >= self.lost_ticks:
                 self.pending_faults.append(f"NODE_LOST({name})")
             if node.status is not None and node.status.drive_state == DriveState.FAULT and node.status_tick == tick:
                 self.pending_faults.append(f"DRIVE_FAULT({name}: error {node.status.error_code})")

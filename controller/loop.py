@@ -19,7 +19,7 @@ import can
 from controller.core import NODES, ControllerCore, TickResult
 from controller.timing import TickStats
 from protocol.catalog import TICK_MS
-from protocol.clock import Clock, MonotonicClock
+from protocol.clock import Clock, MonotonicClock, TickTimer
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver, Transmitter
 from protocol.enums import NmtState
@@ -36,6 +36,8 @@ class LoopReport:
 
 
 class LockstepLoop:
+    """Lock-step: each tick waits for the nodes' frames of its SYNC (see the module doc)."""
+
     def __init__(
         self, core: ControllerCore, bus: can.BusABC, *, codec: Codec | None = None, max_delta_counter: int = 2,
         tick_timeout_s: float = 2.0, boot_wait_s: float = 0.05, max_frames_per_tick: int = 200,
@@ -87,14 +89,14 @@ class LockstepLoop:
         if not expected <= got:
             self.report.timeouts += 1
 
-    def step(self) -> TickResult:
-        self.tick += 1
-        k = self.tick
-        start = self.clock.now_ns()
+    def _expected(self) -> set[str]:
+        return {n for n, s in self.core.nodes.items() if s.nmt == NmtState.OPERATIONAL}
+
+    def _tick(self, k: int, start_ns: int, read_until_ns: int, lateness_ns: int) -> TickResult:
+        """SYNC, read, update, write: one tick ``k`` that started at ``start_ns``."""
+        self.tick = k
         self._send("SYNC", (k,))
-        expected = {n for n, s in self.core.nodes.items() if s.nmt == NmtState.OPERATIONAL}
-        wait = self.tick_timeout_s if expected else self.boot_wait_s
-        self._drain(k, start + int(wait * 1e9), expected)
+        self._drain(k, read_until_ns, self._expected())
         result = self.core.tick(k)
         for name, values in result.frames:
             self._send(name, values)
@@ -102,5 +104,29 @@ class LockstepLoop:
             self._send("CONTROLLER_HEARTBEAT", (int(result.state),))
         self.report.events += [f"tick {k}: {e}" for e in result.events]
         self.report.ticks += 1
-        self.stats.record(0, self.clock.now_ns() - start)
+        self.stats.record(lateness_ns, self.clock.now_ns() - start_ns)
+        return result
+
+    def step(self) -> TickResult:
+        start = self.clock.now_ns()
+        wait = self.tick_timeout_s if self._expected() else self.boot_wait_s
+        return self._tick(self.tick + 1, start, start + int(wait * 1e9), 0)
+
+
+class RealtimeLoop(LockstepLoop):
+    """Real time: tick ``k`` starts at its absolute monotonic deadline (``TickTimer``: an overrun is
+    counted and the loop re-aligns to the next boundary, never a catch-up burst); the nodes' frames
+    are read for at most ``read_window_s`` into the tick, then the core runs and the commands go
+    out for the nodes to apply at the next SYNC."""
+
+    def __init__(self, core: ControllerCore, bus: can.BusABC, *, read_window_s: float = 0.008, **kwargs) -> None:
+        super().__init__(core, bus, **kwargs)
+        self.read_window_ns = int(read_window_s * 1e9)
+        self.timer = TickTimer(self.clock, TICK_MS * 1_000_000)
+
+    def step(self) -> TickResult:
+        k = self.timer.wait()
+        start = self.clock.now_ns()
+        self.stats.skipped = self.timer.skipped
+        result = self._tick(k, start, start + self.read_window_ns, self.timer.last_lateness_ns)
         return result

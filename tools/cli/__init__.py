@@ -23,6 +23,7 @@ SUBCOMMANDS = {
     "sim": "tools.cli.sim",
     "dmp": "tools.cli.dmp",
     "nodes": "tools.cli.nodes",
+    "controller": "tools.cli.controller",
 }
 
 
