@@ -55,6 +55,7 @@ class LockstepLoop:
         self.stats = TickStats(TICK_MS * 1_000_000)
         self.report = LoopReport()
         self.tick = -1
+        self._idle_ns = 0  # time of the tick spent waiting for (or running) the nodes
         self._status_ids = {self.codec.spec(f"JOINT_STATUS_{s}").frame_id: n for n, s in
                             zip(NODES, ("LH", "LK", "RH", "RK"))}
 
@@ -69,11 +70,16 @@ class LockstepLoop:
         """Read this tick's frames until every expected node has reported or the deadline."""
         got: set[str] = set()
         read = 0
+        clock = self.clock
         while read < self.max_frames:
             if self.pump is not None:
+                t0 = clock.now_ns()
                 self.pump()
-            remaining = (until_ns - self.clock.now_ns()) / 1e9
+                self._idle_ns += clock.now_ns() - t0
+            t0 = clock.now_ns()
+            remaining = (until_ns - t0) / 1e9
             msg = self.bus.recv(timeout=max(0.0, remaining) if self.pump is None else 0.0)
+            self._idle_ns += clock.now_ns() - t0  # waiting for the nodes is not the controller's work
             if msg is None:
                 if expected <= got or remaining <= 0:
                     break
@@ -95,6 +101,7 @@ class LockstepLoop:
     def _tick(self, k: int, start_ns: int, read_until_ns: int, lateness_ns: int) -> TickResult:
         """SYNC, read, update, write: one tick ``k`` that started at ``start_ns``."""
         self.tick = k
+        self._idle_ns = 0
         self._send("SYNC", (k,))
         self._drain(k, read_until_ns, self._expected())
         result = self.core.tick(k)
@@ -104,7 +111,8 @@ class LockstepLoop:
             self._send("CONTROLLER_HEARTBEAT", (int(result.state),))
         self.report.events += [f"tick {k}: {e}" for e in result.events]
         self.report.ticks += 1
-        self.stats.record(lateness_ns, self.clock.now_ns() - start_ns)
+        elapsed = self.clock.now_ns() - start_ns
+        self.stats.record(lateness_ns, elapsed - self._idle_ns, elapsed)
         return result
 
     def step(self) -> TickResult:

@@ -34,12 +34,14 @@ class TickStats:
         self.overruns = 0  # ticks whose work ran past the next boundary
         self.skipped = 0  # tick boundaries skipped to re-align after overruns
 
-    def record(self, lateness_ns: int, work_ns: int) -> None:
+    def record(self, lateness_ns: int, work_ns: int, elapsed_ns: int | None = None) -> None:
+        """One tick: its wake-up lateness, its own work, and (when it also waited, e.g. for the
+        nodes' frames) the whole time from wake-up to the end; past the period is an overrun."""
         i = self.count % self.work_ns.size
         self.late_ns[i] = lateness_ns
         self.work_ns[i] = work_ns
         self.count += 1
-        if work_ns + lateness_ns > self.period_ns:
+        if (work_ns if elapsed_ns is None else elapsed_ns) + lateness_ns > self.period_ns:
             self.overruns += 1
 
     @staticmethod

@@ -117,3 +117,15 @@ def test_real_time_controller_and_real_time_nodes_hold_the_hhea_up(request):
     assert loop.rx.stats.rejected_total == 0
     summary = loop.stats.summary()
     assert summary["ticks"] == 100 and summary["work"]["max_us"] > 0
+
+
+def test_the_controller_benchmark_runs_the_real_pipeline():
+    """``aider-exo bench controller`` measures a real run (figures are printed, never asserted)."""
+    import argparse
+
+    from tools.bench import controller as bench
+
+    result = bench.run(argparse.Namespace(config=None, ticks=20, realtime_ticks=20))
+    assert result["lockstep"]["final_state"] == "STAND" and result["realtime"]["ticks"] == 20
+    assert result["lockstep"]["controller_work_us"]["max"] > 0 and result["plain_sleep_loop"]["ticks"] == 20
+    assert "controller work per tick" in bench.format_text(result)

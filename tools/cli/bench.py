@@ -13,6 +13,7 @@ BENCHMARKS = {
     "sim": "tools.bench.sim",
     "algorithms": "tools.bench.algorithms",
     "nodes": "tools.bench.nodes",
+    "controller": "tools.bench.controller",
 }
 
 
