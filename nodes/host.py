@@ -20,7 +20,10 @@ Heartbeats follow the node's time: the SYNC tick in lock-step, its own timer in 
 
 from __future__ import annotations
 
+import threading
 from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -404,3 +407,40 @@ class NodesHost:
             + (f" | fall: {s['fall']}" if s["fall"] else "")
         )
 
+
+
+@contextmanager
+def running_in_thread(host: NodesHost, poll_s: float = 0.05) -> Iterator[NodesHost]:
+    """Boot ``host`` and run it in a background thread until the block ends: real-time nodes in
+    the same process as their peer (tests and benchmarks; a deployment runs them as a process)."""
+    done = threading.Event()
+
+    def loop() -> None:
+        host.boot()
+        while not done.is_set():
+            host.poll(poll_s)
+
+    thread = threading.Thread(target=loop, name="nodes", daemon=True)
+    thread.start()
+    try:
+        yield host
+    finally:
+        done.set()
+        thread.join(timeout=30)
+
+
+class SimTickTimer:
+    """Accumulates the time of the simulation's tick inside ``host`` (benchmarks): the bare
+    simulation measured inside the same run as everything around it."""
+
+    def __init__(self, host: NodesHost, clock: Clock) -> None:
+        self.ns = 0
+        inner = host.patient.tick
+
+        def timed(reading: Reading) -> Reading:
+            start = clock.now_ns()
+            out = inner(reading)
+            self.ns += clock.now_ns() - start
+            return out
+
+        host.patient.tick = timed  # type: ignore[method-assign]  # an instance attribute shadows the method

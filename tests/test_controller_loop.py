@@ -86,30 +86,19 @@ def test_real_time_controller_and_real_time_nodes_hold_the_hhea_up(request):
     """Both sides on the monotonic clock: the nodes in a thread with their own 20 ms timer, the
     controller on absolute deadlines. Nothing here asserts a time: only that the protocol keeps
     up (no watchdog, no lost node) and the tick statistics are reported."""
-    import threading
-
     from controller.loop import RealtimeLoop
+    from nodes.host import running_in_thread
 
     channel = "loop-realtime"
     cfg = with_overrides(BASE, {"bus.channel": channel})
     node_bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
     ctl_bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
     host = NodesHost(cfg, node_bus, lockstep=False, seed=4)
-    done = threading.Event()
-
-    def nodes():
-        host.boot()
-        while not done.is_set():
-            host.poll(0.05)
-
-    thread = threading.Thread(target=nodes, daemon=True)
-    thread.start()
     try:
-        loop = RealtimeLoop(ControllerCore(cfg.controller), ctl_bus)
-        states = [loop.step().state for _ in range(100)]
+        with running_in_thread(host):
+            loop = RealtimeLoop(ControllerCore(cfg.controller), ctl_bus)
+            states = [loop.step().state for _ in range(100)]
     finally:
-        done.set()
-        thread.join(timeout=30)
         host.close()
         node_bus.shutdown()
         ctl_bus.shutdown()

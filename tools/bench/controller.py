@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import threading
 from typing import Any
 
 import numpy as np
@@ -39,7 +38,7 @@ def _lockstep(cfg: Any, ticks: int) -> dict[str, Any]:
 
     from controller.core import ControllerCore
     from controller.loop import LockstepLoop
-    from nodes.host import NodesHost
+    from nodes.host import NodesHost, SimTickTimer
 
     clock = MonotonicClock()
     cfg = with_overrides(cfg, {"bus.interface": "virtual", "bus.channel": "bench-controller"})
@@ -47,17 +46,7 @@ def _lockstep(cfg: Any, ticks: int) -> dict[str, Any]:
             can.Bus(interface="virtual", channel=cfg.bus.channel, ignore_config=True) as ctl_bus:
         host = NodesHost(cfg, node_bus, lockstep=True, seed=0, clock=clock)
         try:
-            sim_ns = 0
-            walker_tick = host.patient.tick
-
-            def timed_tick(reading):
-                nonlocal sim_ns
-                start = clock.now_ns()
-                out = walker_tick(reading)
-                sim_ns += clock.now_ns() - start
-                return out
-
-            host.patient.tick = timed_tick  # an instance attribute shadows the method
+            sim = SimTickTimer(host, clock)
             host.boot()
             loop = LockstepLoop(ControllerCore(cfg.controller), ctl_bus, pump=lambda: host.poll(0.0), clock=clock)
             start = clock.now_ns()
@@ -78,8 +67,8 @@ def _lockstep(cfg: Any, ticks: int) -> dict[str, Any]:
             "max": round(float(work_us.max()), 1),
         },
         "pipeline_ticks_per_s": round(ticks / (total_ns / 1e9), 1),
-        "bare_sim_ticks_per_s": round(physics_ticks / (sim_ns / 1e9), 1),
-        "pipeline_to_bare_sim": round((ticks / total_ns) / (physics_ticks / sim_ns), 3),
+        "bare_sim_ticks_per_s": round(physics_ticks / (sim.ns / 1e9), 1),
+        "pipeline_to_bare_sim": round((ticks / total_ns) / (physics_ticks / sim.ns), 3),
     }
 
 
@@ -101,28 +90,18 @@ def _realtime(cfg: Any, ticks: int) -> dict[str, Any]:
 
     from controller.core import ControllerCore
     from controller.loop import RealtimeLoop
-    from nodes.host import NodesHost
+    from nodes.host import NodesHost, running_in_thread
 
     cfg = with_overrides(cfg, {"bus.interface": "virtual", "bus.channel": "bench-controller-rt"})
-    done = threading.Event()
     with can.Bus(interface="virtual", channel=cfg.bus.channel, ignore_config=True) as node_bus, \
             can.Bus(interface="virtual", channel=cfg.bus.channel, ignore_config=True) as ctl_bus:
         host = NodesHost(cfg, node_bus, lockstep=False, seed=0)
-
-        def nodes() -> None:
-            host.boot()
-            while not done.is_set():
-                host.poll(0.05)
-
-        thread = threading.Thread(target=nodes, daemon=True)
-        thread.start()
         try:
-            loop = RealtimeLoop(ControllerCore(cfg.controller), ctl_bus)
-            for _ in range(ticks):
-                result = loop.step()
+            with running_in_thread(host):
+                loop = RealtimeLoop(ControllerCore(cfg.controller), ctl_bus)
+                for _ in range(ticks):
+                    result = loop.step()
         finally:
-            done.set()
-            thread.join(timeout=30)
             host.close()
     s = loop.stats.summary()
     return {
