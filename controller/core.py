@@ -75,6 +75,7 @@ class ControllerCore:
         self.started = False
         self.pending_faults: list[str] = []
         self.reset_requested = False
+        self.measurements: Measurements | None = None  # of the last tick
 
     # -- input -----------------------------------------------------------------------------------
 
@@ -146,6 +147,7 @@ class ControllerCore:
                 self.pending_faults.append(f"DRIVE_FAULT({name}: error {node.status.error_code})")
         healthy = operational and max(ages) <= 2 and not self.pending_faults
         measurements, fresh = self._measurements(tick)
+        self.measurements = measurements
         estimate = self.estimator.update(measurements) if measurements is not None else None
         inputs = FsmInputs(
             nodes_operational=operational,

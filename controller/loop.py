@@ -17,12 +17,13 @@ from dataclasses import dataclass, field
 import can
 
 from controller.core import NODES, ControllerCore, TickResult
+from controller.telemetry import TelemetryLog
 from controller.timing import TickStats
 from protocol.catalog import TICK_MS
 from protocol.clock import Clock, MonotonicClock, TickTimer
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver, Transmitter
-from protocol.enums import NmtState
+from protocol.enums import JointMode, NmtState
 
 
 @dataclass
@@ -41,7 +42,7 @@ class LockstepLoop:
     def __init__(
         self, core: ControllerCore, bus: can.BusABC, *, codec: Codec | None = None, max_delta_counter: int = 2,
         tick_timeout_s: float = 2.0, boot_wait_s: float = 0.05, max_frames_per_tick: int = 200,
-        pump: Callable[[], object] | None = None, clock: Clock | None = None,
+        pump: Callable[[], object] | None = None, clock: Clock | None = None, telemetry: TelemetryLog | None = None,
     ) -> None:
         self.core, self.bus = core, bus
         self.codec = codec or Codec()
@@ -50,6 +51,7 @@ class LockstepLoop:
         self.tick_timeout_s, self.boot_wait_s = tick_timeout_s, boot_wait_s
         self.max_frames = max_frames_per_tick
         self.pump = pump
+        self.telemetry = telemetry
         self.clock = clock or MonotonicClock()
         self.heartbeat = self.codec.spec("CONTROLLER_HEARTBEAT")
         self.stats = TickStats(TICK_MS * 1_000_000)
@@ -112,8 +114,32 @@ class LockstepLoop:
         self.report.events += [f"tick {k}: {e}" for e in result.events]
         self.report.ticks += 1
         elapsed = self.clock.now_ns() - start_ns
-        self.stats.record(lateness_ns, elapsed - self._idle_ns, elapsed)
+        work = elapsed - self._idle_ns
+        self.stats.record(lateness_ns, work, elapsed)
+        if self.telemetry is not None:
+            self.telemetry.put(self._record(result, work, lateness_ns))
         return result
+
+    def _record(self, result: TickResult, work_ns: int, lateness_ns: int) -> dict:
+        m, est = self.core.measurements, result.estimate
+        commands = [values for name, values in result.frames if name.startswith("JOINT_COMMAND")]
+        return {
+            "tick": result.tick,
+            "state": result.state.name,
+            "q_rad": None if m is None else m.joint_position_rad,
+            "setpoint_rad": [c[1] if c[0] == 1 else None for c in commands],
+            "mode": [JointMode(c[0]).name for c in commands],
+            "stick_force_n": None if m is None else m.stick_force_n,
+            "plantar_n": None if m is None else m.heel_force_n + m.toe_force_n,
+            "trunk_rpy_rad": None if m is None else m.trunk_rpy_rad,
+            "com_m": None if est is None else est.com,
+            "x_ratio": None if est is None else est.x_ratio,
+            "step_length_m": None,  # no swings yet
+            "cost": None,
+            "work_us": round(work_ns / 1e3, 1),
+            "lateness_us": round(lateness_ns / 1e3, 1),
+            "events": result.events,
+        }
 
     def step(self) -> TickResult:
         start = self.clock.now_ns()

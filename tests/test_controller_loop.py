@@ -118,3 +118,18 @@ def test_the_controller_benchmark_runs_the_real_pipeline():
     assert result["lockstep"]["final_state"] == "STAND" and result["realtime"]["ticks"] == 20
     assert result["lockstep"]["controller_work_us"]["max"] > 0 and result["plain_sleep_loop"]["ticks"] == 20
     assert "controller work per tick" in bench.format_text(result)
+
+
+def test_the_loop_writes_one_telemetry_record_per_tick(rig, tmp_path):
+    from controller.telemetry import TelemetryLog, read_log
+
+    loop, _ = rig()
+    loop.telemetry = TelemetryLog(tmp_path / "ticks.jsonl")
+    for _ in range(30):
+        loop.step()
+    assert loop.telemetry.close()["written"] == 30
+    _, records = read_log(tmp_path / "ticks.jsonl")
+    assert [r["tick"] for r in records] == list(range(30))
+    assert records[-1]["state"] == "STAND" and records[-1]["mode"] == ["HOLD"] * 4
+    assert 0.0 < records[-1]["x_ratio"] < 1.0 and len(records[-1]["com_m"]) == 3
+    assert any("INIT -> STAND" in e for r in records for e in r["events"])

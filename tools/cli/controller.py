@@ -27,6 +27,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lockstep", action="store_true", help="a tick advances when the nodes have reported (default: real time)")
     p.add_argument("--ticks", type=positive_int, help="stop after this many ticks (default: run until SIGINT/SIGTERM)")
     p.add_argument("--cpu", type=int, help="real time: pin the loop to this CPU")
+    p.add_argument("--log", metavar="FILE", help="per-tick telemetry as JSON lines (the first line is the schema)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout at exit")
     p.add_argument("--quiet", action="store_true", help="no status lines")
     p.set_defaults(func=run)
@@ -45,6 +46,7 @@ def _status_line(loop: Any, result: Any) -> str:
 def run(args: argparse.Namespace) -> int:
     from controller.core import ControllerCore
     from controller.loop import LockstepLoop, RealtimeLoop
+    from controller.telemetry import TelemetryLog
     from controller.timing import realtime_setup
     from protocol.bus import open_bus
     from protocol.clock import MonotonicClock
@@ -62,10 +64,12 @@ def run(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     bus = open_bus(cfg.bus)
     rt = None
+    telemetry = None
     try:
         core = ControllerCore(cfg.controller)
         clock = MonotonicClock()
-        kwargs = dict(max_delta_counter=cfg.protocol.max_delta_counter, clock=clock)
+        telemetry = TelemetryLog(args.log) if args.log else None
+        kwargs = dict(max_delta_counter=cfg.protocol.max_delta_counter, clock=clock, telemetry=telemetry)
         if args.lockstep:
             loop: LockstepLoop = LockstepLoop(core, bus, **kwargs)
         else:
@@ -81,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
                 print(_status_line(loop, result), file=sys.stderr, flush=True)
                 next_status = clock.now_ns() + 1_000_000_000
     finally:
+        log_report = telemetry.close() if telemetry is not None else None
         bus.shutdown()
         if rt is not None:
             rt.close()
@@ -97,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
         "timing": loop.stats.summary(),
         "realtime_setup": {"applied": rt.applied, "warnings": rt.warnings} if rt else None,
         "events": loop.report.events,
+        "telemetry": log_report,
         "x_ratio": round(result.estimate.x_ratio, 4) if result and result.estimate else None,
         "stopped_by": signal.Signals(stop["signal"]).name if stop["signal"] else None,
     }
