@@ -46,6 +46,7 @@ def _status_line(loop: Any, result: Any) -> str:
 def run(args: argparse.Namespace) -> int:
     from controller.core import ControllerCore
     from controller.loop import LockstepLoop, RealtimeLoop
+    from controller.sdnotify import Notifier
     from controller.telemetry import TelemetryLog
     from controller.timing import realtime_setup
     from protocol.bus import open_bus
@@ -62,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
         stop["signal"] = signum
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    notifier = Notifier()
     bus = open_bus(cfg.bus)
     rt = None
     telemetry = None
@@ -77,14 +79,18 @@ def run(args: argparse.Namespace) -> int:
             for warning in rt.warnings:
                 print(f"aider-exo controller: warning: {warning}", file=sys.stderr)
             loop = RealtimeLoop(core, bus, **kwargs)
+        notifier.ready("controller loop running")
         next_status = clock.now_ns()
         result = None
         while stop["signal"] is None and (args.ticks is None or loop.report.ticks < args.ticks):
             result = loop.step()
+            notifier.ping(clock.now_ns())  # from the loop itself: a hung loop stops the pings
             if not args.quiet and clock.now_ns() >= next_status:
                 print(_status_line(loop, result), file=sys.stderr, flush=True)
                 next_status = clock.now_ns() + 1_000_000_000
     finally:
+        notifier.stopping()
+        notifier.close()
         log_report = telemetry.close() if telemetry is not None else None
         bus.shutdown()
         if rt is not None:
