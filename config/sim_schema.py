@@ -187,6 +187,42 @@ class PatientControlConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class GaitConfig:
+    """The walk's behaviour: the patient's stick moves, shift and lean, and the scripted
+    exoskeleton gait that stands in for the controller in ``aider-exo sim`` (docs/SIM.md)."""
+
+    step_length_m: float = field_spec(doc="Step length of the scripted gait (a sweep overrides it).", unit="m", min=0.02, max=0.6)
+    swing_time_s: float = field_spec(doc="Duration of the swing trajectory.", unit="s", min=0.3, max=5.0)
+    swing_clearance_m: float = field_spec(doc="Peak lift of the swing ankle.", unit="m", min=0.01, max=0.3)
+    stick_move_time_s: float = field_spec(doc="Time the patient takes to move a stick.", unit="s", min=0.1, max=5.0)
+    stick_lift_m: float = field_spec(doc="Peak lift of a moving stick tip.", unit="m", min=0.0, max=0.3)
+    unload_time_s: float = field_spec(doc="Time the patient takes to unload a stick before lifting it.", unit="s", min=0.0, max=3.0)
+    lean_speed_m_s: float = field_spec(doc="Speed of the patient's lean toward the sticks.", unit="m/s", min=0.01, max=1.0)
+    lean_behind_sticks_m: float = field_spec(doc="The lean stops this far behind the stick tips.", unit="m", min=0.0, max=1.0)
+    lean_past_stance_m: float = field_spec(doc="The lean goes at least this far past the stance ankle before a swing.", unit="m", min=0.0, max=0.3)
+    lean_tolerance_m: float = field_spec(doc="A lean this close to its lead counts as reached.", unit="m", min=0.0, max=0.05)
+    stalled_lean_s: float = field_spec(doc="A lean still for this long ...", unit="s", min=0.1, max=1e9)
+    stalled_lean_lead_m: float = field_spec(doc="... with the CoM this far past the stance ankle starts the swing.", unit="m", min=0.0, max=0.3)
+    still_speed_m_s: float = field_spec(doc="A CoM slower than this counts as still (stalled lean).", unit="m/s", min=0.0, max=0.5)
+    stick_force_comfort_n: float = field_spec(doc="The patient leans no further while a stick carries more.", unit="N", min=10.0, max=2000.0)
+    swing_trigger_stick_n: float = field_spec(doc="Both sticks above this load let the scripted gait swing.", unit="N", min=0.0, max=1000.0)
+    stick_planted_n: float = field_spec(doc="A placed stick carrying this much is planted.", unit="N", min=1.0, max=500.0)
+    foot_contact_n: float = field_spec(doc="A foot carrying more than this is on the floor.", unit="N", min=1.0, max=1000.0)
+    foot_lift_s: float = field_spec(doc="Patient-only mode: a foot unloaded this long is swinging.", unit="s", min=0.0, max=2.0)
+    shift_margin_m: float = field_spec(doc="Margin of the CoM in the support that remains before a stick lifts.", unit="m", min=0.0, max=0.2)
+    shift_speed_m_s: float = field_spec(doc="Speed of the patient's shift (and of easing the hip back in it).", unit="m/s", min=0.005, max=1.0)
+    shift_min_s: float = field_spec(doc="Shortest shift before a stick lifts.", unit="s", min=0.0, max=5.0)
+    shift_still_speed_m_s: float = field_spec(doc="The CoM must be slower than this before a stick lifts.", unit="m/s", min=0.0, max=1.0)
+    trunk_pitch_rad: float = field_spec(doc="Trunk pitch the patient keeps.", unit="rad", min=-0.5, max=0.8)
+    leg_reach_m: float = field_spec(doc="Hip-to-ankle distance the stance legs do not exceed.", unit="m", min=0.3, max=1.2)
+    settle_s: float = field_spec(doc="Standing time before the first stick move.", unit="s", min=0.0, max=30.0)
+    min_contact_n: float = field_spec(doc="Smallest normal force the balance distribution gives a loaded contact.", unit="N", min=0.0, max=200.0)
+    hip_speed_m_s: float = field_spec(doc="Fastest the stance legs carry the hip toward the patient's CoM goal.", unit="m/s", min=0.01, max=2.0)
+    hip_correction_m: float = field_spec(doc="Largest hip move the stance legs take in one tick.", unit="m", min=0.001, max=0.1)
+    leg_ff_gain: float = field_spec(doc="Share of the balance distribution's leg torques fed forward.", min=0.0, max=2.0)
+
+
+@dataclass(frozen=True, kw_only=True)
 class FallConfig:
     tilt_limit_rad: float = field_spec(doc="Trunk roll or pitch beyond this is a fall.", unit="rad", min=0.2, max=1.5)
     min_hip_height_m: float = field_spec(doc="Hip joints lower than this is a fall (collapse).", unit="m", min=0.1, max=1.2)
@@ -213,4 +249,5 @@ class SimConfig:
     firmware: FirmwareConfig = field_spec(doc="Emulated node-board joint loop.")
     sensors: SensorsConfig = field_spec(doc="Sensor noise and resolution.")
     patient: PatientControlConfig = field_spec(doc="The patient model.")
+    gait: GaitConfig = field_spec(doc="The walk: the patient's behaviour and the scripted exoskeleton gait.")
     fall: FallConfig = field_spec(doc="Fall detection (ground truth).")

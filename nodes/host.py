@@ -43,7 +43,7 @@ from protocol.errors import EncodeError
 from sim.actuation import Mode
 from sim.model import EXO_JOINTS
 from sim.sensors import Reading
-from sim.walk import Walker, WalkSettings, initial_pose
+from sim.walk import Walker, initial_pose
 from sim.world import World
 
 NODES = ("LEFT_HIP", "LEFT_KNEE", "RIGHT_HIP", "RIGHT_KNEE")
@@ -107,7 +107,7 @@ class NodesHost:
         self.world = World(sim_cfg, gui=gui)
         try:
             self.world.place(initial_pose(sim_cfg))
-            self.patient = Walker(self.world, sim_cfg, WalkSettings(), np.random.default_rng(seeds[0]), scripted_exo=False)
+            self.patient = Walker(self.world, sim_cfg, sim_cfg.gait, np.random.default_rng(seeds[0]), scripted_exo=False)
             self.reading: Reading = self.patient.start()
         except Exception:
             self.world.close()

@@ -13,7 +13,7 @@ from typing import Any, Callable
 import numpy as np
 
 from config.sim_schema import SimConfig
-from sim.walk import WalkResult, WalkSettings, walk
+from sim.walk import WalkResult, gait_settings, walk
 
 
 def episode_summary(r: WalkResult) -> dict[str, Any]:
@@ -36,7 +36,7 @@ def episode_summary(r: WalkResult) -> dict[str, Any]:
 
 def _episode(args: tuple[SimConfig, float, int, int]) -> dict[str, Any]:
     cfg, length, seed, steps = args
-    return episode_summary(walk(cfg, WalkSettings(step_length_m=length), seed=seed, max_steps=steps))
+    return episode_summary(walk(cfg, gait_settings(cfg, step_length_m=length), seed=seed, max_steps=steps))
 
 
 def run_sweep(

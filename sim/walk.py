@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from config.sim_schema import SimConfig
+from config.sim_schema import GaitConfig, SimConfig
 from sim.actuation import Mode
 from sim.balance import Contact, WrenchGains, desired_wrench, distribute
 from sim.kinematics import Kinematics
@@ -51,36 +51,9 @@ class Phase(enum.Enum):
     SWING = "swing"  # the exoskeleton swings a leg
 
 
-@dataclass(frozen=True)
-class WalkSettings:
-    """Behaviour of the patient and the scripted exoskeleton (fixed for a sweep)."""
-
-    step_length_m: float = 0.12
-    swing_time_s: float = 1.2
-    swing_clearance_m: float = 0.10
-    stick_move_time_s: float = 0.8
-    stick_lift_m: float = 0.06
-    unload_time_s: float = 0.3
-    lean_speed_m_s: float = 0.15
-    lean_behind_sticks_m: float = 0.24
-    lean_past_stance_m: float = 0.05  # CoM ahead of the stance ankle before a swing starts
-    stalled_lean_s: float = 2.0  # a lean that has stopped this long ...
-    stalled_lean_lead_m: float = 0.02  # ... with the CoM this far past the stance ankle starts the swing
-    stick_force_comfort_n: float = 260.0
-    swing_trigger_stick_n: float = 60.0
-    foot_contact_n: float = 60.0
-    foot_lift_s: float = 0.1  # patient-only mode: a foot unloaded this long is swinging
-    shift_margin_m: float = 0.03
-    shift_speed_m_s: float = 0.05
-    trunk_pitch_rad: float = 0.10
-    leg_reach_m: float = 0.85
-    settle_s: float = 0.6
-    integral_gain_n_ms: float = 0.0  # an integral term winds up during leans and pull-backs (docs/SIM.md)
-    integral_limit_m_s: float = 0.05
-    min_contact_n: float = 8.0
-    hip_speed_m_s: float = 0.2
-    hip_correction_m: float = 0.01
-    leg_ff_gain: float = 1.0
+def gait_settings(cfg: SimConfig, **changes: float) -> GaitConfig:
+    """The configured gait (``sim.gait``) with ``changes`` (a sweep's step length, a test's knob)."""
+    return dataclasses.replace(cfg.gait, **changes)
 
 
 @dataclass
@@ -141,7 +114,7 @@ class Walker:
     """Runs one walk; owns nothing but references (the world is closed by the caller)."""
 
     def __init__(
-        self, world: World, cfg: SimConfig, settings: WalkSettings, rng: np.random.Generator, *, scripted_exo: bool = True
+        self, world: World, cfg: SimConfig, settings: GaitConfig, rng: np.random.Generator, *, scripted_exo: bool = True
     ) -> None:
         """``scripted_exo=False``: the patient alone; the exoskeleton's joints are commanded by
         someone else (the emulated node boards) and the patient senses its steps from the plantar
@@ -180,7 +153,6 @@ class Walker:
         self.steps: list[StepRecord] = []
         self._next_step = StepRecord(index=-1, leg="", start_s=0.0)  # the step in the making, until its swing starts
         self.margin = math.inf
-        self.integral = np.zeros(2)
         self.residual = 0.0
         self.unloaded_s = {"l": 0.0, "r": 0.0}  # how long each foot has been off the floor (sensed)
         self.fall: str | None = None
@@ -253,8 +225,8 @@ class Walker:
             # a patient who cannot get there waits (the walk stalls rather than falls).
             lifting = self.stick_queue[:2] if self.together else self.stick_queue[:1]
             margin = self._support_margin(tips=[side for side in SIDES if side not in lifting and self.planted[side]])
-            settled = margin >= s.shift_margin_m / 2 and np.linalg.norm(self.kin.com_velocity[:2]) < 0.05
-            if settled and self.phase_t > 0.2:
+            settled = margin >= s.shift_margin_m / 2 and np.linalg.norm(self.kin.com_velocity[:2]) < s.shift_still_speed_m_s
+            if settled and self.phase_t > s.shift_min_s:
                 for side in lifting:
                     self.unloading[side] = 0.0
                 self._set_phase(Phase.STICKS)
@@ -275,7 +247,7 @@ class Walker:
                     self.tip_path[side] = (start, goal, 0.0)
             for side, (start, goal, tau) in list(self.tip_path.items()):
                 tau += dt / s.stick_move_time_s
-                if tau >= 1.0 and reading.stick_force_n[SIDES.index(side)] > 20.0:
+                if tau >= 1.0 and reading.stick_force_n[SIDES.index(side)] > s.stick_planted_n:
                     del self.tip_path[side]
                     self.planted[side] = True
                     self.stick_queue.remove(side)
@@ -312,12 +284,12 @@ class Walker:
         if self.phase is Phase.LEAN and self.swing_leg is None:
             loaded = all(reading.stick_force_n > s.swing_trigger_stick_n) and all(plantar > s.foot_contact_n)
             lead = self.kin.com[0] - self.ankle_xy(OTHER[self.next_swing])[0]
-            leaned = loaded and lead >= s.lean_past_stance_m - 0.005 and self.phase_t > 0.3
+            leaned = loaded and lead >= s.lean_past_stance_m - s.lean_tolerance_m and self.phase_t > 0.3
             # A lean that stops short (the trailing leg straight, item 12 of docs/SIM.md) with the
             # CoM past the stance ankle: the step starts anyway, as the patient's step button would.
             stalled = (
                 self.phase_t > s.stalled_lean_s and lead >= s.stalled_lean_lead_m
-                and abs(self.kin.com_velocity[0]) < 0.02 and all(plantar > s.foot_contact_n)
+                and abs(self.kin.com_velocity[0]) < s.still_speed_m_s and all(plantar > s.foot_contact_n)
             )
             if leaned or stalled:
                 self._start_swing(self.next_swing)
@@ -375,6 +347,8 @@ class Walker:
         s = self.s
         u = min(self.phase_t / s.swing_time_s, 1.0)
 
+        # The ankle rises over the first 30 % of the swing, advances from 15 % to 85 %, and comes
+        # down over the last 30 % (the shape of the scripted swing; the controller's DMP has its own).
         x = self.swing_start[0] + (self.swing_goal[0] - self.swing_start[0]) * _minimum_jerk((u - 0.15) / 0.7)
         lift = _minimum_jerk(u / 0.3) - _minimum_jerk((u - 0.7) / 0.3)
         z = self.body.ankle_height_m + s.swing_clearance_m * lift + (0.0 if u < 1.0 else -0.01)
@@ -406,13 +380,10 @@ class Walker:
         # Stance feet rest on the floor: the body above the ankles is what the contacts must carry.
         foot_links = {f: w.link_index[f"foot_{f}"] for f in feet}
         carried = w.total_mass - sum(w.masses[i + 1] for i in foot_links.values())
-        error = self.com_target - com[:2]
-        self.integral = np.clip(self.integral + error * self.dt_control, -s.integral_limit_m_s, s.integral_limit_m_s)
         wrench = desired_wrench(
             carried, com, kin.com_velocity, self.com_target, trunk_origin[2], hip_target, base_v[2],
             rpy, trunk_rot.T @ omega, np.array([0.0, s.trunk_pitch_rad]), self.gains,
         )
-        wrench[:2] += s.integral_gain_n_ms * self.integral
         # In 3-D the legs (hip and knee pitch only) cannot push sideways: the sticks carry the
         # lateral force and the roll moment.
         lateral = self.cfg.mode == "sagittal"
@@ -619,7 +590,7 @@ def initial_pose(cfg: SimConfig) -> StancePose:
 
 
 def walk(
-    cfg: SimConfig, settings: WalkSettings, seed: int, max_steps: int, *, gui: bool = False, on_tick=None,
+    cfg: SimConfig, settings: GaitConfig, seed: int, max_steps: int, *, gui: bool = False, on_tick=None,
     max_time_s: float = 120.0,
 ) -> WalkResult:
     """One episode in a fresh world (deterministic for a seed); it ends after ``max_steps`` steps,

@@ -12,7 +12,7 @@ import pytest
 from config import default_config_path, load_config
 from controller.estimator import Measurements, StateEstimator, rot_rpy
 from sim.truth import fore_aft_ratio, pivot_polygon
-from sim.walk import Walker, WalkSettings, initial_pose
+from sim.walk import Walker, gait_settings, initial_pose
 from sim.world import World
 
 CFG = load_config(default_config_path())
@@ -60,7 +60,7 @@ def test_estimates_match_the_ground_truth_over_a_walk(mode):
     agree = []
     with World(sim_cfg) as world:
         world.place(initial_pose(sim_cfg))
-        walker = Walker(world, sim_cfg, WalkSettings(step_length_m=0.10), np.random.default_rng(2))
+        walker = Walker(world, sim_cfg, gait_settings(sim_cfg, step_length_m=0.10), np.random.default_rng(2))
         reading = walker.start()
         for _ in range(500 if mode == "sagittal" else 150):  # 10 s (3 steps) / 3 s (before 3-D falls)
             reading = walker.tick(reading)

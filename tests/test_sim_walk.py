@@ -7,7 +7,9 @@ import json
 
 from config import default_config_path, load_config
 from sim.sweep import episode_summary
-from sim.walk import WalkSettings, walk
+import pytest
+
+from sim.walk import gait_settings, walk
 from tools.cli import main
 
 SIM = dataclasses.replace(load_config(default_config_path()).sim, mode="sagittal")
@@ -18,9 +20,9 @@ def _fingerprint(result):
 
 
 def test_same_seed_same_walk_and_another_seed_differs():
-    a = walk(SIM, WalkSettings(step_length_m=0.12), seed=3, max_steps=2, max_time_s=12.0)
-    b = walk(SIM, WalkSettings(step_length_m=0.12), seed=3, max_steps=2, max_time_s=12.0)
-    c = walk(SIM, WalkSettings(step_length_m=0.12), seed=4, max_steps=2, max_time_s=12.0)
+    a = walk(SIM, gait_settings(SIM, step_length_m=0.12), seed=3, max_steps=2, max_time_s=12.0)
+    b = walk(SIM, gait_settings(SIM, step_length_m=0.12), seed=3, max_steps=2, max_time_s=12.0)
+    c = walk(SIM, gait_settings(SIM, step_length_m=0.12), seed=4, max_steps=2, max_time_s=12.0)
     assert a.steps and _fingerprint(a) == _fingerprint(b)
     assert _fingerprint(a) != _fingerprint(c)  # the patient's stick placement is noisy
 
@@ -28,7 +30,7 @@ def test_same_seed_same_walk_and_another_seed_differs():
 def test_a_short_step_walks_in_the_plane_without_falling():
     # Before load acceptance (the patient taking the CoM from where the landing left it) this
     # fell in the shift after the second landing on every seed.
-    result = walk(SIM, WalkSettings(step_length_m=0.10), seed=1, max_steps=6, max_time_s=40.0)
+    result = walk(SIM, gait_settings(SIM, step_length_m=0.10), seed=1, max_steps=6, max_time_s=40.0)
     assert not result.fell, (result.fall_phase, result.fall_reason)
     assert result.steps_completed == 6
     assert [s.leg for s in result.steps] == ["r", "l"] * 3  # the legs alternate
@@ -37,14 +39,14 @@ def test_a_short_step_walks_in_the_plane_without_falling():
 
 def test_a_lean_that_stalls_past_the_stance_foot_starts_the_step():
     # At 0.16 m the trailing leg goes straight before the lean reaches its goal (docs/SIM.md item 12).
-    stuck = walk(SIM, WalkSettings(step_length_m=0.16, stalled_lean_s=1e9), seed=5, max_steps=6, max_time_s=25.0)
+    stuck = walk(SIM, gait_settings(SIM, step_length_m=0.16, stalled_lean_s=1e9), seed=5, max_steps=6, max_time_s=25.0)
     assert not stuck.fell and stuck.steps_completed < 6  # waits for good
-    result = walk(SIM, WalkSettings(step_length_m=0.16), seed=5, max_steps=6, max_time_s=40.0)
+    result = walk(SIM, gait_settings(SIM, step_length_m=0.16), seed=5, max_steps=6, max_time_s=40.0)
     assert not result.fell and result.steps_completed == 6
 
 
 def test_a_far_too_long_step_falls_and_the_fall_is_reported():
-    result = walk(SIM, WalkSettings(step_length_m=0.40), seed=0, max_steps=6, max_time_s=30.0)
+    result = walk(SIM, gait_settings(SIM, step_length_m=0.40), seed=0, max_steps=6, max_time_s=30.0)
     assert result.fell
     summary = episode_summary(result)
     assert summary["fall_reason"] and summary["fall_phase"] in {"settle", "shift", "sticks", "lean", "swing"}
@@ -74,3 +76,14 @@ def test_json_stdout_stays_clean_of_pybullet_prints():
                           cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["mode"] == "sagittal"
+
+
+def test_the_gait_is_configuration_whose_errors_name_the_key():
+    from config import ConfigError, default_config_path, load_config, with_overrides
+
+    base = load_config(default_config_path())
+    assert base.sim.gait.step_length_m == 0.12
+    with pytest.raises(ConfigError, match=r"sim\.gait\.lean_speed_m_s: -0\.1 is below the minimum 0\.01"):
+        with_overrides(base, {"sim.gait.lean_speed_m_s": -0.1})
+    changed = gait_settings(base.sim, step_length_m=0.16)
+    assert changed.step_length_m == 0.16 and changed.swing_time_s == base.sim.gait.swing_time_s

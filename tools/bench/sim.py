@@ -30,14 +30,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run_mode(cfg: Any, mode: str, seconds: float) -> dict[str, Any]:
-    from sim.walk import Walker, WalkSettings, initial_pose  # PyBullet loads only when this benchmark runs
+    from sim.walk import Walker, gait_settings, initial_pose  # PyBullet loads only when this benchmark runs
     from sim.world import World
 
     clock = MonotonicClock()
     sim_cfg = dataclasses.replace(cfg, mode=mode)
     with World(sim_cfg) as world:
         world.place(initial_pose(sim_cfg))
-        walker = Walker(world, sim_cfg, WalkSettings(settle_s=seconds + 1.0), np.random.default_rng(0))
+        walker = Walker(world, sim_cfg, gait_settings(sim_cfg, settle_s=seconds + 1.0), np.random.default_rng(0))
         step = world.client.stepSimulation
         physics_ns = 0
 

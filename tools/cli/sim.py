@@ -99,12 +99,12 @@ def run_sweep(args: argparse.Namespace) -> int:
 
 def run_walk(args: argparse.Namespace) -> int:
     from sim.sweep import episode_summary
-    from sim.walk import WalkSettings, walk
+    from sim.walk import gait_settings, walk
 
     cfg = _sim_config(args)
     if not args.max_time > 0:
         raise ConfigError("--max-time must be positive")
-    result = walk(cfg, WalkSettings(step_length_m=args.length), seed=args.seed, max_steps=2 * args.cycles, gui=args.gui,
+    result = walk(cfg, gait_settings(cfg, step_length_m=args.length), seed=args.seed, max_steps=2 * args.cycles, gui=args.gui,
                   max_time_s=args.max_time)
     summary = dict(episode_summary(result), mode=cfg.mode)
     if args.json:
@@ -122,7 +122,7 @@ def run_walk(args: argparse.Namespace) -> int:
 def run_render(args: argparse.Namespace) -> int:
     from sim.render import Camera, Recorder
     from sim.sweep import episode_summary
-    from sim.walk import WalkSettings, walk
+    from sim.walk import gait_settings, walk
 
     cfg = _sim_config(args)
     camera = Camera(target_xyz=(0.3, 0.0, 0.7), distance_m=2.8, yaw_deg=20.0, pitch_deg=-10.0, width_px=320, height_px=240)
@@ -132,7 +132,7 @@ def run_render(args: argparse.Namespace) -> int:
         base_x = world.link_frame("trunk")[0][0]
         recorder.maybe_capture(world.client, t, camera.follow(float(base_x)))
 
-    result = walk(cfg, WalkSettings(step_length_m=args.length), seed=args.seed, max_steps=2 * args.cycles, on_tick=on_tick)
+    result = walk(cfg, gait_settings(cfg, step_length_m=args.length), seed=args.seed, max_steps=2 * args.cycles, on_tick=on_tick)
     args.out.mkdir(parents=True, exist_ok=True)
     gif = recorder.save_gif(args.out / f"hhea-walk-{cfg.mode}.gif")
     strip = recorder.save_strip(args.out / f"hhea-walk-{cfg.mode}.png", 6)
