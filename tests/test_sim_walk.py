@@ -5,10 +5,10 @@ from __future__ import annotations
 import dataclasses
 import json
 
-from config import default_config_path, load_config
-from sim.sweep import episode_summary
 import pytest
 
+from config import default_config_path, load_config
+from sim.sweep import episode_summary
 from sim.walk import gait_settings, walk
 from tools.cli import main
 
