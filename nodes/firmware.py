@@ -90,7 +90,8 @@ class NodeFirmware:
         """Power-on or reset: BOOT_UP (the host sends the boot-up message), then pre-operational."""
         self.boots += 1
         self.state = NmtState.PRE_OPERATIONAL
-        self.boot_up_pending = True
+        self.boot_up_pending = True  # the host sends BOOT_UP (with counters from 0) and clears this
+        self.emcy.clear()  # a reset drops what was queued
         self.error = NodeError.NONE
         self.latched = False
         self.pending: DriveCommand | None = None

@@ -154,20 +154,23 @@ class NodesHost:
         return tick * TICK_MS if self.lockstep else self.now_ms()
 
     def boot(self) -> None:
-        """Every node sends its boot-up message (after power-on or a reset)."""
+        """Power-on: every node sends its boot-up message."""
         for port in self.ports.values():
-            self._send_boot_up(port)
+            self._emit(port, 0)
 
-    def _send_boot_up(self, port: NodePort) -> None:
-        port.firmware.boot_up_pending = False
-        self._send(port, port.heartbeat, (int(NmtState.BOOT_UP),), tick=max(self.last_sync_tick, 0))
-
-    def _reboot(self, port: NodePort) -> None:
-        port.firmware.boot()
-        port.tx.reset()
-        port.stale.clear()
-        port.stuck_position = None
-        self._send_boot_up(port)
+    def _emit(self, port: NodePort, tick: int) -> None:
+        """Send what the firmware has for the bus outside the per-SYNC frames: its boot-up after a
+        (re)boot, with counters from 0 and nothing stale kept, then its queued EMCYs."""
+        fw = port.firmware
+        if fw.boot_up_pending:
+            fw.boot_up_pending = False
+            port.tx.reset()
+            port.stale.clear()
+            port.stuck_position = None
+            self._send(port, port.heartbeat, (int(NmtState.BOOT_UP),), tick)
+        while fw.emcy:
+            e = fw.emcy.pop(0)
+            self._send(port, port.emcy, (int(e.code), e.error_register, e.detail), tick)
 
     # -- receive ---------------------------------------------------------------------------------
 
@@ -196,12 +199,8 @@ class NodesHost:
             for port in targets:
                 if port is None:
                     continue  # addressed to a node we do not emulate
-                command = NmtCommand(values.command)
-                if command in (NmtCommand.RESET_NODE, NmtCommand.RESET_COMMUNICATION):
-                    self._reboot(port)
-                else:
-                    port.firmware.on_nmt(command, now)
-                    self._send_emcys(port, max(self.last_sync_tick, 0))
+                port.firmware.on_nmt(NmtCommand(values.command), now)
+                self._emit(port, max(self.last_sync_tick, 0))
 
     # -- the tick --------------------------------------------------------------------------------
 
@@ -211,7 +210,8 @@ class NodesHost:
         self.last_sync_tick = tick
         for port in self.ports.values():
             if self.faults.starting(port.name, "reboot", tick):
-                self._reboot(port)
+                port.firmware.boot()
+                self._emit(port, tick)
             if self.faults.starting(port.name, "drive_fault", tick):
                 port.firmware.raise_fault(NodeError.OVER_CURRENT, EmcyCode.OVER_CURRENT, ERR_GENERIC | ERR_CURRENT, 0)
             if self.faults.frozen(port.name, tick):
@@ -235,7 +235,7 @@ class NodesHost:
         self._physics_tick()
         self._heartbeats(self.own_tick)
         for port in self.ports.values():
-            self._send_emcys(port, self.own_tick)
+            self._emit(port, self.own_tick)
 
     def _physics_tick(self) -> None:
         self.reading = self.patient.tick(self.reading)
@@ -264,12 +264,6 @@ class NodesHost:
                 continue
             self._send(port, port.heartbeat, (int(port.firmware.state),), tick)
 
-    def _send_emcys(self, port: NodePort, tick: int) -> None:
-        fw = port.firmware
-        while fw.emcy:
-            e = fw.emcy.pop(0)
-            self._send(port, port.emcy, (int(e.code), e.error_register, e.detail), tick)
-
     def _report(self, tick: int) -> None:
         for spec, payload in self.faults.due(tick):
             self._transmit(spec, payload)
@@ -279,7 +273,7 @@ class NodesHost:
                     if spec.frame_id in port.stale and port.firmware.state == NmtState.OPERATIONAL:
                         self._transmit(spec, port.stale[spec.frame_id])
                 continue
-            self._send_emcys(port, tick)
+            self._emit(port, tick)
             if port.firmware.state != NmtState.OPERATIONAL:
                 continue
             stuck = self.faults.stuck_encoder(port.name, tick)
