@@ -25,11 +25,10 @@ from config.controller_schema import ControllerConfig
 from controller.envelope import Envelope, JointBounds, JointCommand
 from controller.estimator import Estimate, Measurements, StateEstimator
 from controller.fsm import FsmInputs, GaitFsm
+from protocol.catalog import Catalog, default_catalog
 from protocol.codec import Decoded
 from protocol.enums import DriveState, GaitState, JointMode, NmtCommand, NmtState
 
-NODES = ("LEFT_HIP", "LEFT_KNEE", "RIGHT_HIP", "RIGHT_KNEE")
-SUFFIX = {"LEFT_HIP": "LH", "LEFT_KNEE": "LK", "RIGHT_HIP": "RH", "RIGHT_KNEE": "RK"}
 SENSOR_MESSAGES = (
     "STICK_LEFT", "STICK_RIGHT", "PLANTAR_LEFT", "PLANTAR_RIGHT", "TRUNK_IMU_ORIENTATION", "TRUNK_IMU_RATE",
 )
@@ -56,8 +55,13 @@ class TickResult:
 
 
 class ControllerCore:
-    def __init__(self, cfg: ControllerConfig, *, lost_ticks: int = 3, hold_torque_nm: float = 80.0) -> None:
+    def __init__(
+        self, cfg: ControllerConfig, *, catalog: Catalog | None = None, lost_ticks: int = 3, hold_torque_nm: float = 80.0
+    ) -> None:
         self.cfg = cfg
+        catalog = catalog or default_catalog()
+        self.node_names = catalog.joint_nodes  # left hip, left knee, right hip, right knee
+        self._command_of = {n: catalog.message("JOINT_COMMAND", n).name for n in self.node_names}
         self.fsm = GaitFsm()
         self.estimator = StateEstimator(cfg.body, cfg.legs)
         legs = cfg.legs
@@ -70,7 +74,7 @@ class ControllerCore:
         self.joint_names = [j.name for j in joints]
         self.lost_ticks = lost_ticks
         self.hold_torque_nm = hold_torque_nm
-        self.nodes = {n: NodeState() for n in NODES}
+        self.nodes = {n: NodeState() for n in self.node_names}
         self.latest: dict[str, tuple[int, Any]] = {}  # sensor message -> (tick, values)
         self.started = False
         self.pending_faults: list[str] = []
@@ -112,11 +116,11 @@ class ControllerCore:
 
     def _measurements(self, tick: int) -> tuple[Measurements | None, bool]:
         """The tick's sensor values, and whether every one of them is from this tick."""
-        if any(n not in self.latest for n in SENSOR_MESSAGES) or any(self.nodes[n].status is None for n in NODES):
+        if any(n not in self.latest for n in SENSOR_MESSAGES) or any(s.status is None for s in self.nodes.values()):
             return None, False
-        fresh = all(self.latest[n][0] == tick for n in SENSOR_MESSAGES) and all(self.nodes[n].status_tick == tick for n in NODES)
+        fresh = all(self.latest[n][0] == tick for n in SENSOR_MESSAGES) and all(s.status_tick == tick for s in self.nodes.values())
         v = {n: self.latest[n][1] for n in SENSOR_MESSAGES}
-        q = np.array([self.nodes[n].status.position_rad for n in NODES])
+        q = np.array([s.status.position_rad for s in self.nodes.values()])
         stick = [v["STICK_LEFT"], v["STICK_RIGHT"]]
         plantar = [v["PLANTAR_LEFT"], v["PLANTAR_RIGHT"]]
         o = v["TRUNK_IMU_ORIENTATION"]
@@ -166,8 +170,8 @@ class ControllerCore:
             self.reset_requested = False
         self.pending_faults.clear()
         # Commands: hold every joint (the walking states are not wired yet), through the envelope.
-        for name, joint in zip(NODES, self.joint_names):
+        for name, joint in zip(self.node_names, self.joint_names):
             checked = self.envelope.check(joint, JointCommand(JointMode.HOLD, torque_limit_nm=self.hold_torque_nm), 0.0)
             c = checked.command
-            frames.append((f"JOINT_COMMAND_{SUFFIX[name]}", (int(c.mode), 0.0, 0.0, 0.0, float(round(c.torque_limit_nm)))))
+            frames.append((self._command_of[name], (int(c.mode), 0.0, 0.0, 0.0, float(round(c.torque_limit_nm)))))
         return TickResult(tick, state, frames, estimate, events)

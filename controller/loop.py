@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import can
 
-from controller.core import NODES, ControllerCore, TickResult
+from controller.core import ControllerCore, TickResult
 from controller.telemetry import TelemetryLog
 from controller.timing import TickStats
 from protocol.catalog import TICK_MS
@@ -58,8 +58,8 @@ class LockstepLoop:
         self.report = LoopReport()
         self.tick = -1
         self._idle_ns = 0  # time of the tick spent waiting for (or running) the nodes
-        self._status_ids = {self.codec.spec(f"JOINT_STATUS_{s}").frame_id: n for n, s in
-                            zip(NODES, ("LH", "LK", "RH", "RK"))}
+        catalog = self.codec.catalog
+        self._status_ids = {catalog.message("JOINT_STATUS", n).frame_id: n for n in core.node_names}
 
     def _send(self, name: str, values: tuple) -> None:
         try:

@@ -46,7 +46,6 @@ from sim.sensors import Reading
 from sim.walk import Walker, initial_pose
 from sim.world import World
 
-NODES = ("LEFT_HIP", "LEFT_KNEE", "RIGHT_HIP", "RIGHT_KNEE")
 TICK_NS = TICK_MS * 1_000_000
 #: gait states in which the patient walks (moves the sticks and leans); otherwise the patient stands
 WALKING_STATES = frozenset({GaitState.DOUBLE_SUPPORT, GaitState.SWING_LEFT, GaitState.SWING_RIGHT})
@@ -114,7 +113,7 @@ class NodesHost:
             raise
         joints = sim_cfg.model.joints
         self.ports: dict[str, NodePort] = {}
-        for node in NODES:
+        for node in catalog.joint_nodes:
             joint = EXO_JOINTS.index(("hip_" if node.endswith("HIP") else "knee_") + ("l" if node.startswith("LEFT") else "r"))
             spec = joints.hip if node.endswith("HIP") else joints.knee
             limits = JointLimits(spec.lower_rad, spec.upper_rad, spec.velocity_limit_rad_s, spec.torque_limit_nm)

@@ -137,6 +137,20 @@ class Catalog:
     def nodes(self) -> tuple[str, ...]:
         return tuple(self.node_ids)
 
+    @property
+    def joint_nodes(self) -> tuple[str, ...]:
+        """The joint node boards (the senders of a JOINT_STATUS), in node-id order."""
+        senders = {m.sender for m in self.messages if m.family == "JOINT_STATUS"}
+        return tuple(sorted(senders, key=self.node_ids.__getitem__))
+
+    def message(self, family: str, node: str) -> MessageSpec:
+        """The message of ``family`` that ``node`` sends, or that is addressed to it alone
+        (``message("JOINT_COMMAND", "LEFT_HIP")``)."""
+        for m in self.messages:
+            if m.family == family and (m.sender == node or m.receivers == (node,)):
+                return m
+        raise ProtocolError(f"no {family} message of node {node}")
+
 
 def _attr(obj: Any, name: str, default: Any = None) -> Any:
     """Value of a DBC attribute (enumerations by their label), or ``default``."""

@@ -99,3 +99,15 @@ def test_missing_or_garbage_dbc(tmp_path):
     garbage.write_text("BO_ this is not a DBC")
     with pytest.raises(ProtocolError, match="not a valid DBC file"):
         load_catalog(garbage)
+
+
+def test_joint_nodes_and_their_messages_come_from_the_dbc():
+    from protocol.catalog import default_catalog
+    from protocol.errors import ProtocolError
+
+    cat = default_catalog()
+    assert cat.joint_nodes == ("LEFT_HIP", "LEFT_KNEE", "RIGHT_HIP", "RIGHT_KNEE")
+    assert cat.message("JOINT_COMMAND", "RIGHT_KNEE").name == "JOINT_COMMAND_RK"  # addressed to it
+    assert cat.message("JOINT_STATUS", "LEFT_HIP").name == "JOINT_STATUS_LH"  # sent by it
+    with pytest.raises(ProtocolError, match="no PLANTAR message of node LEFT_HIP"):
+        cat.message("PLANTAR", "LEFT_HIP")
