@@ -36,7 +36,7 @@ from sim.balance import Contact, WrenchGains, desired_wrench, distribute
 from sim.kinematics import Kinematics
 from sim.model import JOINT_ORDER, arm_ik, leg_ik
 from sim.sensors import Sensors, rpy_from_matrix
-from sim.truth import pivot_polygon, stability_margin
+from sim.truth import convex_hull_2d, pivot_polygon, stability_margin
 from sim.world import GRAVITY, StancePose, World
 
 SIDES = ("l", "r")
@@ -168,15 +168,6 @@ class Walker:
         tip = origin - rot[:, 2] * (b.forearm_m + b.grip_m + b.stick_m)
         return tip - np.array([0.0, 0.0, self.cfg.model.sticks.tip_radius_m])
 
-    def support_points(self, feet: list[str], tips: list[str]) -> np.ndarray:
-        half = self.cfg.model.foot.half_width_m
-        pts = []
-        for s in feet:
-            a = self.ankle_xy(s)
-            pts += [a + [0, half], a - [0, half]]
-        pts += [self.tip_point(s)[:2] for s in tips]
-        return np.array(pts)
-
     # -- the patient ---------------------------------------------------------------------------
 
     def _set_phase(self, phase: Phase) -> None:
@@ -190,8 +181,7 @@ class Walker:
         """Where the CoM must be before the next stick(s) lift: inside the support that remains."""
         lifting = self.stick_queue[:2] if self.together else self.stick_queue[:1]
         remaining_tips = [s for s in SIDES if s not in lifting and self.planted[s]]
-        feet = [s for s in SIDES if self.stance_feet[s]]
-        ankles = np.array([self.ankle_xy(s) for s in feet])
+        ankles, tip_xy = self._support_points(remaining_tips)
         lo, hi = ankles[:, 0].min(), ankles[:, 0].max()
         x = float(self.kin.com[0])
         m = self.s.shift_margin_m
@@ -200,10 +190,9 @@ class Walker:
         # 3-D: the legs have no frontal-plane joints, so the patient cannot carry the CoM sideways
         # (docs/SIM.md item 13); it moves fore-aft only, to the nearest point that the remaining
         # support holds with margin.
-        tip_xy = np.array([self.tip_point(t)[:2] for t in remaining_tips]).reshape(-1, 2)
-        poly = pivot_polygon(ankles, tip_xy, ankle_halfwidth=self.cfg.model.foot.half_width_m)
+        poly = convex_hull_2d(pivot_polygon(ankles, tip_xy, ankle_halfwidth=self.cfg.model.foot.half_width_m))
         y = float(self.kin.com[1])
-        far = max(hi, *(self.tip_point(t)[0] for t in remaining_tips)) if remaining_tips else hi
+        far = max(hi, *tip_xy[:, 0]) if len(tip_xy) else hi
         xs = np.linspace(lo - self.cfg.model.foot.heel_back_m, (hi + far) / 2, 61)
         margins = np.array([stability_margin(poly, (xi, y)) for xi in xs])
         ok = margins >= m
@@ -489,15 +478,17 @@ class Walker:
 
     # -- the loop ------------------------------------------------------------------------------
 
+    def _support_points(self, tips: list[str]) -> tuple[np.ndarray, np.ndarray]:
+        """(k, 2) stance ankles and (j, 2) points of the stick tips ``tips``, on the floor plane."""
+        ankles = np.array([self.ankle_xy(s) for s in SIDES if self.stance_feet[s]]).reshape(-1, 2)
+        return ankles, np.array([self.tip_point(s)[:2] for s in tips]).reshape(-1, 2)
+
     def _support_margin(self, tips: list[str] | None = None) -> float:
         """Static stability margin of the CoM over the stance ankles and ``tips`` (by default every
         planted tip). In 3-D the pivot polygon; in the sagittal mode, where the plane spring holds
         the trunk laterally, its fore-aft extent (two ankles at different y would otherwise make a
         thin diagonal strip that says nothing about the sagittal balance)."""
-        feet = [s for s in SIDES if self.stance_feet[s]]
-        tips = [s for s in SIDES if self.planted[s]] if tips is None else tips
-        ankles = np.array([self.ankle_xy(s) for s in feet]).reshape(-1, 2)
-        tip_xy = np.array([self.tip_point(s)[:2] for s in tips]).reshape(-1, 2)
+        ankles, tip_xy = self._support_points([s for s in SIDES if self.planted[s]] if tips is None else tips)
         com = self.kin.com[:2]
         if self.cfg.mode == "sagittal":
             xs = np.concatenate([ankles[:, 0], tip_xy[:, 0]])
