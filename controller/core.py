@@ -37,11 +37,13 @@ SENSOR_MESSAGES = (
 @dataclass
 class NodeState:
     nmt: NmtState | None = None  # from its heartbeat (None: never heard)
-    booted: bool = False
     status: Any = None  # the newest JOINT_STATUS values
     status_tick: int = -1  # the tick it arrived in
-    was_operational: bool = False
-    operational_since: int = -1  # the tick its heartbeat first said OPERATIONAL
+    operational_since: int = -1  # the tick its heartbeat first said OPERATIONAL (-1: never)
+
+    @property
+    def was_operational(self) -> bool:
+        return self.operational_since >= 0
 
 
 @dataclass
@@ -96,12 +98,11 @@ class ControllerCore:
             if state == NmtState.BOOT_UP:
                 if node.was_operational:
                     self.pending_faults.append(f"NODE_REBOOTED({sender})")
-                node.booted = True
             elif node.was_operational and state != NmtState.OPERATIONAL:
                 self.pending_faults.append(f"NODE_NOT_OPERATIONAL({sender})")
             node.nmt = state
             if state == NmtState.OPERATIONAL and not node.was_operational:
-                node.was_operational, node.operational_since = True, tick
+                node.operational_since = tick
         elif family == "EMCY":
             if v.error_register != 0:
                 self.pending_faults.append(f"EMCY {v.emcy_code:#06x} from {sender}")
@@ -137,8 +138,7 @@ class ControllerCore:
         """The work of ``tick`` after its node frames are in; returns what to send."""
         frames: list[tuple[str, tuple]] = []
         events: list[str] = []
-        all_booted = all(n.booted or n.nmt is not None for n in self.nodes.values())
-        if not self.started and all_booted:
+        if not self.started and all(n.nmt is not None for n in self.nodes.values()):  # all booted or heard
             frames.append(("NMT_COMMAND", (int(NmtCommand.START), 0)))
             self.started = True
             events.append("NMT start")

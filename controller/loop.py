@@ -162,5 +162,4 @@ class RealtimeLoop(LockstepLoop):
         k = self.timer.wait()
         start = self.clock.now_ns()
         self.stats.skipped = self.timer.skipped
-        result = self._tick(k, start, start + self.read_window_ns, self.timer.last_lateness_ns)
-        return result
+        return self._tick(k, start, start + self.read_window_ns, self.timer.last_lateness_ns)

@@ -42,3 +42,17 @@ def test_bad_dbc_is_one_line_error(tmp_path, capsys):
     assert main(["protocol", "--dbc", str(bad)]) == 1
     err = capsys.readouterr().err
     assert err.startswith("aider-exo: error: ") and err.count("\n") == 1
+
+
+def test_stop_signals_record_sigint_and_sigterm_and_restore_the_handlers():
+    import os
+    import signal
+
+    from tools.cli.common import StopSignals
+
+    before = signal.getsignal(signal.SIGTERM)
+    with StopSignals() as stop:
+        assert not stop.requested and stop.name is None
+        os.kill(os.getpid(), signal.SIGTERM)  # recorded, not fatal
+        assert stop.requested and stop.name == "SIGTERM"
+    assert signal.getsignal(signal.SIGTERM) is before

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 from typing import Any
 
@@ -50,3 +51,33 @@ def positive_float(text: str) -> float:
     if not value > 0 or value == float("inf"):
         raise argparse.ArgumentTypeError(f"{text} is not a positive finite number")
     return value
+
+
+class StopSignals:
+    """While in the ``with`` block, SIGINT and SIGTERM only record that a stop was asked
+    (``requested``), so a loop can end its tick and close its bus cleanly; the previous handlers
+    come back at exit."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._previous: dict[int, Any] = {}
+
+    def _handler(self, signum: int, _frame: Any) -> None:
+        self.signum = signum
+
+    @property
+    def requested(self) -> bool:
+        return self.signum is not None
+
+    @property
+    def name(self) -> str | None:
+        """SIGINT or SIGTERM, once one arrived."""
+        return signal.Signals(self.signum).name if self.signum is not None else None
+
+    def __enter__(self) -> StopSignals:
+        self._previous = {s: signal.signal(s, self._handler) for s in (signal.SIGINT, signal.SIGTERM)}
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for s, handler in self._previous.items():
+            signal.signal(s, handler)

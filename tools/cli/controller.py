@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 from typing import Any
 
-from tools.cli.common import add_config_options, load_cli_config, positive_int, print_json
+from tools.cli.common import StopSignals, add_config_options, load_cli_config, positive_int, print_json
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -57,46 +56,39 @@ def run(args: argparse.Namespace) -> int:
         from config import ConfigError
 
         raise ConfigError("the controller needs the controller section", key="controller")
-    stop: dict[str, int | None] = {"signal": None}
-
-    def on_signal(signum: int, _frame: Any) -> None:
-        stop["signal"] = signum
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     notifier = Notifier()
-    bus = open_bus(cfg.bus)
     rt = None
     telemetry = None
-    try:
-        core = ControllerCore(cfg.controller)
-        clock = MonotonicClock()
-        telemetry = TelemetryLog(args.log) if args.log else None
-        kwargs = dict(max_delta_counter=cfg.protocol.max_delta_counter, clock=clock, telemetry=telemetry)
-        if args.lockstep:
-            loop: LockstepLoop = LockstepLoop(core, bus, **kwargs)
-        else:
-            rt = realtime_setup(cpu=args.cpu)
-            for warning in rt.warnings:
-                print(f"aider-exo controller: warning: {warning}", file=sys.stderr)
-            loop = RealtimeLoop(core, bus, **kwargs)
-        notifier.ready("controller loop running")
-        next_status = clock.now_ns()
-        result = None
-        while stop["signal"] is None and (args.ticks is None or loop.report.ticks < args.ticks):
-            result = loop.step()
-            notifier.ping(clock.now_ns())  # from the loop itself: a hung loop stops the pings
-            if not args.quiet and clock.now_ns() >= next_status:
-                print(_status_line(loop, result), file=sys.stderr, flush=True)
-                next_status = clock.now_ns() + 1_000_000_000
-    finally:
-        notifier.stopping()
-        notifier.close()
-        log_report = telemetry.close() if telemetry is not None else None
-        bus.shutdown()
-        if rt is not None:
-            rt.close()
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+    with StopSignals() as stop:
+        bus = open_bus(cfg.bus)
+        try:
+            core = ControllerCore(cfg.controller)
+            clock = MonotonicClock()
+            telemetry = TelemetryLog(args.log) if args.log else None
+            kwargs = dict(max_delta_counter=cfg.protocol.max_delta_counter, clock=clock, telemetry=telemetry)
+            if args.lockstep:
+                loop: LockstepLoop = LockstepLoop(core, bus, **kwargs)
+            else:
+                rt = realtime_setup(cpu=args.cpu)
+                for warning in rt.warnings:
+                    print(f"aider-exo controller: warning: {warning}", file=sys.stderr)
+                loop = RealtimeLoop(core, bus, **kwargs)
+            notifier.ready("controller loop running")
+            next_status = clock.now_ns()
+            result = None
+            while not stop.requested and (args.ticks is None or loop.report.ticks < args.ticks):
+                result = loop.step()
+                notifier.ping(clock.now_ns())  # from the loop itself: a hung loop stops the pings
+                if not args.quiet and clock.now_ns() >= next_status:
+                    print(_status_line(loop, result), file=sys.stderr, flush=True)
+                    next_status = clock.now_ns() + 1_000_000_000
+        finally:
+            notifier.stopping()
+            notifier.close()
+            log_report = telemetry.close() if telemetry is not None else None
+            bus.shutdown()
+            if rt is not None:
+                rt.close()
     summary = {
         "mode": "lockstep" if args.lockstep else "realtime",
         "ticks": loop.report.ticks,
@@ -110,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
         "events": loop.report.events,
         "telemetry": log_report,
         "x_ratio": round(result.estimate.x_ratio, 4) if result and result.estimate else None,
-        "stopped_by": signal.Signals(stop["signal"]).name if stop["signal"] else None,
+        "stopped_by": stop.name,
     }
     if args.json:
         print_json(summary)

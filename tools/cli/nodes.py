@@ -3,11 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-from typing import Any
-
-from tools.cli.common import add_config_options, load_cli_config, print_json
+from tools.cli.common import StopSignals, add_config_options, load_cli_config, print_json
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -32,16 +29,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-class _Stop:
-    """Set by SIGINT or SIGTERM; the loop ends at its next poll."""
-
-    def __init__(self) -> None:
-        self.signal: int | None = None
-
-    def __call__(self, signum: int, _frame: Any) -> None:
-        self.signal = signum
-
-
 def run(args: argparse.Namespace) -> int:
     from config import with_overrides
     from nodes.host import NodesHost
@@ -51,26 +38,23 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_cli_config(args)
     if args.mode:
         cfg = with_overrides(cfg, {"sim.mode": args.mode})
-    stop = _Stop()
-    previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
-    bus = open_bus(cfg.bus)
-    try:
-        host = NodesHost(cfg, bus, lockstep=args.lockstep, seed=args.seed, gui=args.gui, clock=MonotonicClock())
+    with StopSignals() as stop:
+        bus = open_bus(cfg.bus)
         try:
-            host.boot()
-            interval = cfg.nodes.status_interval_s if cfg.nodes else 1.0
-            while stop.signal is None:
-                host.poll(interval)
-                if not args.quiet:
-                    print(host.status_line(), file=sys.stderr, flush=True)
-            result = host.status()
+            host = NodesHost(cfg, bus, lockstep=args.lockstep, seed=args.seed, gui=args.gui, clock=MonotonicClock())
+            try:
+                host.boot()
+                interval = cfg.nodes.status_interval_s if cfg.nodes else 1.0
+                while not stop.requested:
+                    host.poll(interval)
+                    if not args.quiet:
+                        print(host.status_line(), file=sys.stderr, flush=True)
+                result = host.status()
+            finally:
+                host.close()
         finally:
-            host.close()
-    finally:
-        bus.shutdown()
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-    result["stopped_by"] = signal.Signals(stop.signal).name if stop.signal else None
+            bus.shutdown()
+    result["stopped_by"] = stop.name
     if args.json:
         print_json(result)
     elif not args.quiet:
