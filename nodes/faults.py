@@ -18,6 +18,7 @@ from config.loader import AiderError
 from config.nodes_schema import FaultConfig
 from protocol.catalog import Catalog, MessageSpec
 from protocol.codec import with_raw_value
+from protocol.errors import ProtocolError
 
 
 class FaultConfigError(AiderError):
@@ -46,7 +47,7 @@ class FaultInjector:
             if cfg.message is not None:
                 try:
                     spec = catalog.by_name(cfg.message)
-                except Exception:
+                except ProtocolError:
                     raise FaultConfigError(f"nodes.faults.{name}.message: unknown message {cfg.message!r}") from None
                 if spec.sender != cfg.node:
                     raise FaultConfigError(f"nodes.faults.{name}.message: {cfg.message} is sent by {spec.sender}, not {cfg.node}")

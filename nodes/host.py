@@ -113,16 +113,16 @@ class NodesHost:
             raise
         joints = sim_cfg.model.joints
         self.ports: dict[str, NodePort] = {}
-        for node in catalog.joint_nodes:
-            joint = EXO_JOINTS.index(("hip_" if node.endswith("HIP") else "knee_") + ("l" if node.startswith("LEFT") else "r"))
-            spec = joints.hip if node.endswith("HIP") else joints.knee
+        # The node boards in node-id order drive the exoskeleton's joints in the same order.
+        for joint, (node, joint_name) in enumerate(zip(catalog.joint_nodes, EXO_JOINTS, strict=True)):
+            spec = joints.hip if joint_name.startswith("hip") else joints.knee
             limits = JointLimits(spec.lower_rad, spec.upper_rad, spec.velocity_limit_rad_s, spec.torque_limit_nm)
             sent = catalog.sent_by(node)
             self.ports[node] = NodePort(
                 name=node,
                 node_id=catalog.node_ids[node],
                 joint=joint,
-                side=0 if node.startswith("LEFT") else 1,
+                side=0 if joint_name.endswith("_l") else 1,
                 firmware=NodeFirmware(
                     node, limits, command_timeout_ticks=cfg.nodes.command_timeout_ticks,
                     heartbeat_timeout_ms=cfg.nodes.heartbeat_timeout_ms,

@@ -35,9 +35,13 @@ class ScriptedController:
         self.codec = Codec()
         self.tx = Transmitter(self.codec)
         self.rx = Receiver(self.codec, max_delta_counter=1)
-        self.host = NodesHost(cfg, self.node_bus, lockstep=True, seed=seed)
+        try:
+            self.host = NodesHost(cfg, self.node_bus, lockstep=True, seed=seed)
+        except Exception:
+            self.node_bus.shutdown()
+            self.bus.shutdown()
+            raise
         self.tick = -1
-        self.hold = {j: None for j in JOINTS}
         self.host.boot()
         self.boot_frames = self.frames()
 
@@ -467,3 +471,10 @@ def test_any_controller_frame_sequence_is_handled_without_an_exception():
     finally:
         ctl.close()
     assert ctl.host.rx.stats.rejected_total > 0  # the random bytes were counted, not raised
+
+
+def test_a_fault_naming_an_unknown_message_names_the_key():
+    from nodes.faults import FaultConfigError
+
+    with pytest.raises(FaultConfigError, match=r"nodes.faults.y.message: unknown message 'STICK_MIDDLE'"):
+        ScriptedController("nodes-badfault2", faults={"y": {"kind": "drop", "node": "LEFT_HIP", "message": "STICK_MIDDLE", "start_tick": 1}})
