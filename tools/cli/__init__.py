@@ -24,6 +24,7 @@ SUBCOMMANDS = {
     "dmp": "tools.cli.dmp",
     "nodes": "tools.cli.nodes",
     "controller": "tools.cli.controller",
+    "trace": "tools.cli.trace",
 }
 
 

@@ -14,6 +14,7 @@ BENCHMARKS = {
     "algorithms": "tools.bench.algorithms",
     "nodes": "tools.bench.nodes",
     "controller": "tools.bench.controller",
+    "trace": "tools.bench.trace",
 }
 
 

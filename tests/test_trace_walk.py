@@ -1,0 +1,116 @@
+"""On a lock-step walking run recorded here (the controller, the node boards and the simulation in
+this process): re-simulation reproduces it with zero divergence and names the first divergence
+when a controller parameter changes; cantools' decode agrees with ours on every signal; stats and
+plot read it. The run is recorded by the test, never a committed golden trace (the gait changes)."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import subprocess
+import sys
+
+import pytest
+
+from protocol.catalog import DBC_PATH, default_catalog
+from protocol.codec import Codec, Decoded
+from tools.cli import main
+from tools.trace.decode import TraceDecoder
+from tools.trace.reader import ReadReport, read_frames
+
+TICKS = 300  # 6 s: stand-up, weight shift and lean
+
+
+@pytest.fixture(scope="module")
+def walk(tmp_path_factory):
+    path = tmp_path_factory.mktemp("walk") / "walk.log"
+    assert main(["trace", "record", str(path), "--walk", "1", "--max-time", str(TICKS * 0.02), "--seed", "1"]) == 0
+    return path
+
+
+def _json(capsys, argv, code=0):
+    assert main(argv) == code
+    return json.loads(capsys.readouterr().out)
+
+
+def test_resim_reproduces_the_recorded_run_with_zero_divergence(walk, capsys):
+    r = _json(capsys, ["trace", "resim", str(walk), "--json"])
+    assert r["reproduced"] and r["divergent_ticks"] == 0 and r["first_divergence"] is None
+    assert r["ticks"] == TICKS and r["request_walk_tick"] == 0 and r["warnings"] == []
+    assert r["frames_compared"] >= 4 * TICKS and r["signals_compared"] > 5000 and r["node_frames_rejected"] == 0
+    assert r["final_state"] in ("DOUBLE_SUPPORT", "SWING_LEFT", "SWING_RIGHT")  # it walks
+
+
+def test_resim_reports_the_first_divergence_when_a_controller_parameter_changes(walk, capsys):
+    r = _json(capsys, ["trace", "resim", str(walk), "--json", "--set", "controller.gait.lean_speed_m_s=0.08"], code=1)
+    first = r["first_divergence"]
+    assert not r["reproduced"] and r["divergent_ticks"] > 0
+    assert first["tick"] > 0 and first["message"].startswith("JOINT_COMMAND_")
+    spec = default_catalog().by_name(first["message"])
+    assert first["signal"] in [s.name for s in spec.signals] and first["unit"] == spec.signal(first["signal"]).unit
+    assert first["recorded"] != first["resim"]
+    assert main(["trace", "resim", str(walk), "--set", "controller.gait.lean_speed_m_s=0.08"]) == 1
+    text = capsys.readouterr().out
+    assert f"first divergence at tick {first['tick']}: {first['message']}.{first['signal']}: recorded" in text
+
+
+def test_resim_without_the_operators_start_diverges_when_the_recording_starts_walking(walk, capsys):
+    r = _json(capsys, ["trace", "resim", str(walk), "--json", "--no-request-walk"], code=1)
+    assert r["first_divergence"]["message"].startswith("JOINT_COMMAND_") and r["final_state"] == "STAND"
+
+
+def test_resim_of_a_trace_without_sync_says_there_is_nothing_to_compare(tmp_path, capsys):
+    log = tmp_path / "nosync.log"
+    log.write_text("(0.0) vcan0 181#0011223344556677\n")
+    assert main(["trace", "resim", str(log)]) == 1
+    out = capsys.readouterr()
+    assert "nothing to compare" in out.out and "Traceback" not in out.err
+
+
+def test_cantools_decode_agrees_with_ours_on_every_signal_of_the_walk(walk):
+    codec = Codec()
+    ours = list(TraceDecoder(codec).rows(read_frames([walk], ReadReport())))
+    assert {r.status for r in ours} == {"ok"}
+    theirs = subprocess.run([sys.executable, "-m", "cantools", "decode", "--single-line", str(DBC_PATH)],
+                            input=walk.read_text(), capture_output=True, text=True, timeout=300, check=True).stdout.splitlines()
+    assert len(theirs) == len(ours)
+    compared = 0
+    for row, line in zip(ours, theirs):
+        match = re.search(r" :: (\w+)\((.*)\)$", line)
+        assert match and match.group(1) == row.spec.name, line
+        values = dict(item.split(": ", 1) for item in match.group(2).split(", "))
+        assert int(values.pop("e2e_counter")) == row.counter
+        values.pop("e2e_crc")
+        for sig, value in zip(row.spec.signals, codec.as_dict(_decoded(row), choices=True).values()):
+            text = values[sig.name].split(" ")[0]
+            if isinstance(value, str):
+                assert text == value, (row.spec.name, sig.name)
+            else:
+                assert math.isclose(float(text), value, abs_tol=1e-9), (row.spec.name, sig.name, text, value)
+            compared += 1
+    assert compared > 20 * TICKS
+
+
+def _decoded(row):
+    return Decoded(row.spec, row.values, row.counter, row.frame.timestamp)
+
+
+def test_stats_of_the_walk_show_the_lockstep_tick(walk, capsys):
+    r = _json(capsys, ["trace", "stats", str(walk), "--json"])
+    assert r["crc_errors"] == 0 and r["counter_errors"] == 0 and r["lost_by_counter"] == 0 and r["unknown_id_frames"] == 0
+    assert r["tick"]["syncs"] == TICKS and r["tick"]["ticks_missed"] == 0
+    assert r["tick"]["period_ms"]["mean"] == pytest.approx(20.0, abs=1e-3)
+    assert r["bus_load"]["bitrate_bit_s"] == 1_000_000 and 5 < r["bus_load"]["mean_percent_worst"] < 15
+
+
+def test_plot_of_the_walk_is_a_png_and_a_plot_of_nothing_is_no_file(walk, tmp_path, capsys):
+    png = tmp_path / "joints.png"
+    r = _json(capsys, ["trace", "plot", str(walk), "--signal", "JOINT_STATUS_*.position_rad",
+                       "--signal", "STICK_*.force_N", "-o", str(png), "--json"])
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and r["panels"] == 2 and len(r["signals"]) == 6
+    assert r["points"] >= 6 * (TICKS - 2) and r["bad_frames"] == 0
+    empty = tmp_path / "none.png"
+    assert main(["trace", "plot", str(walk), "--signal", "position_rad", "--start", "100", "-o", str(empty)]) == 1
+    assert "no values of the chosen signals" in capsys.readouterr().err and not empty.exists()
+    assert list(tmp_path.glob(".*")) == []

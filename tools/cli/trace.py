@@ -1,0 +1,391 @@
+"""``aider-exo trace``: record, decode, inspect, plot, replay and re-simulate CAN traces (docs/TRACE.md)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any, Callable
+
+from tools.cli.common import StopSignals, add_config_options, load_cli_config, positive_float, positive_int, print_json
+
+FORMATS_HELP = "traces: .log (candump -l/-L), .asc, .blf, .trc, .csv (python-can), .mf4 (with asammdf); - reads candump -L from stdin"
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("trace", help="record, decode, inspect, plot, replay and re-simulate CAN traces",
+                       description="CAN traces with the project's DBC: " + FORMATS_HELP + ".")
+    tsub = p.add_subparsers(dest="trace_command", metavar="ACTION", required=True)
+
+    r = tsub.add_parser("record", help="record a bus (or an in-process walk) to a file, with rotation and a metadata sidecar")
+    r.add_argument("output", type=Path, help="trace file; its suffix picks the format: .log .asc .blf .trc .csv .mf4")
+    add_config_options(r)
+    r.add_argument("--walk", type=positive_int, metavar="CYCLES",
+                   help="record the lock-step pipeline (controller, nodes, simulation) walking CYCLES gait cycles in this process")
+    r.add_argument("--mode", choices=("sagittal", "full3d"), default="sagittal", help="--walk: the simulation's mode (default sagittal)")
+    r.add_argument("--max-time", type=positive_float, metavar="S", help="--walk: simulated seconds at most")
+    r.add_argument("--seed", type=int, help="seed of the run (--walk: of the simulation, default 0); kept in the sidecar")
+    r.add_argument("--count", type=positive_int, help="stop after this many frames")
+    r.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds")
+    r.add_argument("--idle-timeout", type=positive_float, metavar="S", help="stop after S seconds without a frame")
+    r.add_argument("--rotate-mb", type=positive_float, metavar="MB", help="start a new part when one reaches MB megabytes")
+    r.add_argument("--rotate-s", type=positive_float, metavar="S", help="start a new part every S seconds of trace time")
+    r.add_argument("--bitrate", type=positive_int, metavar="BIT_S", help="bitrate for the sidecar (default bus.bitrate_bit_s)")
+    r.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    r.add_argument("--json", action="store_true", help="machine-readable summary")
+    r.set_defaults(func=run_record)
+
+    d = tsub.add_parser("decode", help="decode a trace with the DBC: table, CSV or JSON lines, errors marked")
+    _add_input(d)
+    d.add_argument("--format", choices=("table", "csv", "jsonl"), default="table", help="output (default table)")
+    d.add_argument("--json", dest="format", action="store_const", const="jsonl", help="same as --format jsonl")
+    d.add_argument("-o", "--output", type=Path, help="write here (atomically) instead of standard output")
+    d.add_argument("--errors-only", action="store_true", help="only frames that failed a check or follow lost ones")
+    d.add_argument("--numeric", action="store_true", help="enumerations as numbers, not their DBC labels")
+    d.set_defaults(func=run_decode)
+
+    s = tsub.add_parser("stats", help="per-ID counts, periods and jitter, errors, bus load and the tick seen from SYNC")
+    _add_input(s)
+    s.add_argument("--bitrate", type=positive_int, metavar="BIT_S", help="bitrate of the bus-load figures (default: the sidecar's, else the config's)")
+    s.add_argument("--json", action="store_true", help="machine-readable output")
+    s.set_defaults(func=run_stats)
+
+    pl = tsub.add_parser("plot", help="chosen signals against time, to a PNG")
+    _add_input(pl, signals_required=True)
+    pl.add_argument("-o", "--output", type=Path, required=True, help="PNG file")
+    pl.add_argument("--title", help="figure title (default: the trace's name)")
+    pl.add_argument("--json", action="store_true", help="machine-readable summary")
+    pl.set_defaults(func=run_plot)
+
+    rp = tsub.add_parser("replay", help="send a trace onto a bus with its original timing, by role")
+    _add_input(rp, config=False)
+    add_config_options(rp)
+    rp.add_argument("--role", choices=("all", "nodes", "controller"), default="all",
+                    help="nodes: only the node boards' frames (to drive a live controller); controller: only the controller's (to drive live nodes)")
+    rp.add_argument("--speed", type=positive_float, default=1.0, help="speed factor (2 = twice as fast)")
+    rp.add_argument("--loop", type=_loops, default=1, metavar="N|inf", help="play N times, or until stopped (default 1)")
+    rp.add_argument("--skip-gaps", type=_non_negative, metavar="S", help="shorten every gap longer than S seconds to S (0: send at once)")
+    rp.add_argument("--catch-up", action="store_true",
+                    help="after a stall send the overdue frames at once (default: each keeps half its recorded gap, no burst)")
+    rp.add_argument("--spin-us", type=_non_negative, default=200.0, metavar="US",
+                    help="poll the clock for the last US microseconds before each frame instead of sleeping (default 200)")
+    rp.add_argument("--realtime", action="store_true",
+                    help="SCHED_FIFO, locked memory, no deep idle states (controller.timing; each refused step is a warning)")
+    rp.add_argument("--json", action="store_true", help="machine-readable summary")
+    rp.set_defaults(func=run_replay)
+
+    rs = tsub.add_parser("resim", help="feed a recorded lock-step run's node frames to the controller; report the first divergence")
+    rs.add_argument("files", nargs="+", help="the recorded run (rotated parts in order)")
+    rs.add_argument("--config", metavar="FILE", help="YAML configuration of the controller (default: the packaged one)")
+    rs.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a configuration value (repeatable)")
+    start = rs.add_mutually_exclusive_group()
+    start.add_argument("--request-walk-tick", type=int, metavar="TICK", help="the operator's start at this tick (default: the sidecar's)")
+    start.add_argument("--no-request-walk", action="store_true", help="no operator start (a standing run)")
+    rs.add_argument("--json", action="store_true", help="machine-readable output")
+    rs.set_defaults(func=run_resim)
+
+
+def _loops(text: str) -> int | None:
+    if text.lower() in ("inf", "i"):
+        return None
+    return positive_int(text)
+
+
+def _non_negative(text: str) -> float:
+    return 0.0 if text.strip() in ("0", "0.0") else positive_float(text)
+
+
+def _add_input(p: argparse.ArgumentParser, *, signals_required: bool = False, config: bool = True) -> None:
+    p.add_argument("files", nargs="+", help=FORMATS_HELP + " (several files: read in the order given)")
+    p.add_argument("--dbc", help="DBC file (default: the project's protocol/aider.dbc)")
+    if config:
+        p.add_argument("--config", metavar="FILE", help="YAML configuration (max_delta_counter, bitrate; default: the packaged one)")
+    p.add_argument("--node", action="append", default=[], help="a node's frames: sent by it or addressed to it alone (repeatable)")
+    p.add_argument("--message", action="append", default=[], help="message name or 0xID, shell patterns: 'JOINT_STATUS_*' (repeatable)")
+    p.add_argument("--signal", action="append", default=[], required=signals_required,
+                   help="signal NAME or MESSAGE.NAME, shell patterns: 'JOINT_*_LH.position*' (repeatable)")
+    p.add_argument("--start", type=float, metavar="S", help="from S seconds after the first frame")
+    p.add_argument("--end", type=float, metavar="S", help="up to S seconds after the first frame")
+
+
+# -- shared input handling -----------------------------------------------------------------------
+
+
+class _Input:
+    """The trace files, the DBC, the selection and what reading them met."""
+
+    def __init__(self, args: argparse.Namespace, *, role: str = "all") -> None:
+        from protocol.catalog import default_catalog, load_catalog
+        from protocol.codec import Codec
+        from tools.trace.decode import Selection
+        from tools.trace.files import read_sidecar
+        from tools.trace.reader import ReadReport, check_readable
+
+        check_readable(args.files)
+        if args.files.count("-") > 1 or ("-" in args.files and len(args.files) > 1):
+            from tools.trace import TraceError
+
+            raise TraceError("standard input (-) can only be the one trace")
+        self.files = args.files
+        self.catalog = load_catalog(args.dbc) if getattr(args, "dbc", None) else default_catalog()
+        self.codec = Codec(self.catalog)
+        self.sidecars = [m for m in (read_sidecar(f) for f in args.files) if m is not None]
+        controller = self.catalog.by_name("SYNC").sender  # the DBC's sender of SYNC is the controller
+        senders = {"all": (), "nodes": tuple(n for n in self.catalog.nodes if n != controller), "controller": (controller,)}[role]
+        self.selection = Selection(nodes=tuple(args.node), messages=tuple(args.message), signals=tuple(args.signal),
+                                   start_s=args.start, end_s=args.end, senders=senders).compile(self.catalog)
+        self.report = ReadReport()
+        self.streaming = args.files == ["-"]
+
+    def frames(self) -> Any:
+        from tools.trace.reader import read_frames
+
+        return read_frames(self.files, self.report)
+
+    def warnings(self, receiver: Any = None) -> list[str]:
+        from tools.trace.files import dbc_info
+
+        out = self.report.warnings()
+        if receiver is not None and self.report.frames:
+            rejected = receiver.stats.rejected
+            from protocol.codec import RejectReason
+
+            unknown = rejected.get(RejectReason.UNKNOWN_ID, 0)
+            known = self.report.frames - unknown
+            if known == 0:
+                out.append(f"none of the {self.report.frames} frames has an ID of {self.catalog.source}: "
+                           "a trace of another bus, or the wrong DBC?")
+            elif rejected.get(RejectReason.BAD_CRC, 0) * 2 > known:
+                out.append(f"{rejected[RejectReason.BAD_CRC]} of the {known} frames with known IDs fail their CRC: "
+                           "the wrong DBC, or another protocol version?")
+        ours = dbc_info(self.catalog)["sha256"]
+        for meta in self.sidecars:
+            theirs = (meta.get("dbc") or {}).get("sha256")
+            if theirs and ours and theirs != ours:
+                out.append(f"the trace was recorded with another DBC (protocol version {meta['dbc'].get('protocol_version')}, "
+                           f"sha256 {theirs[:12]}); decoding with {self.catalog.source} (sha256 {ours[:12]})")
+                break
+        return out
+
+
+def _warn(lines: list[str]) -> None:
+    for line in lines:
+        print(f"aider-exo: warning: {line}", file=sys.stderr)
+
+
+def _protocol_settings(args: argparse.Namespace) -> tuple[int, int]:
+    """(max_delta_counter, bitrate) of the configuration named by ``--config``."""
+    from config import default_config_path, load_config
+
+    cfg = load_config(args.config or default_config_path())
+    return cfg.protocol.max_delta_counter, cfg.bus.bitrate_bit_s
+
+
+# -- record --------------------------------------------------------------------------------------
+
+
+def run_record(args: argparse.Namespace) -> int:
+    from protocol.bus import open_bus
+    from protocol.catalog import default_catalog
+    from protocol.clock import MonotonicClock
+    from tools.trace import TraceError
+    from tools.trace.files import recording_metadata
+    from tools.trace.record import TraceWriter, check_writable, record_bus, record_walk
+
+    cfg = load_cli_config(args)
+    check_writable(args.output, overwrite=args.overwrite)
+    if args.walk is None and cfg.bus.interface == "virtual":
+        raise TraceError("a virtual bus lives inside one process: record a socketcan bus (--bus socketcan "
+                         "--channel vcan0), or the in-process pipeline with --walk CYCLES")
+    if args.walk is not None and (args.count or args.duration or args.idle_timeout):
+        raise TraceError("--walk records the whole walk: --count, --duration and --idle-timeout are for a live bus")
+    clock = MonotonicClock()
+    writer = TraceWriter(args.output, rotate_bytes=int(args.rotate_mb * 1e6) if args.rotate_mb else None,
+                         rotate_s=args.rotate_s)
+    try:
+        if args.walk is not None:
+            seed = args.seed if args.seed is not None else 0
+            source = record_walk(cfg, writer, cycles=args.walk, seed=seed, mode=args.mode, max_time_s=args.max_time)
+            timebase = "lockstep: simulated time, 20 ms from SYNC to SYNC"
+        else:
+            seed = args.seed
+            with StopSignals() as stop:
+                bus = open_bus(cfg.bus)
+                try:
+                    if not args.json:
+                        print(f"recording {cfg.bus.interface}:{cfg.bus.channel} to {args.output} (Ctrl-C stops)", file=sys.stderr)
+                    ended = record_bus(bus, writer, clock, count=args.count, duration_s=args.duration,
+                                       idle_timeout_s=args.idle_timeout, stop=lambda: stop.requested)
+                finally:
+                    bus.shutdown()
+            source = {"kind": "bus", "ended_by": ended if ended != "stopped" else stop.name}
+            timebase = "bus receive timestamps"
+    except BaseException:
+        writer.abort()
+        raise
+    meta = writer.close(recording_metadata(cfg, default_catalog(), seed=seed, bitrate_bit_s=args.bitrate or cfg.bus.bitrate_bit_s,
+                                           timebase=timebase, source=source))
+    if args.json:
+        print_json(meta)
+    else:
+        parts = ", ".join(meta["parts"]) or "no file (no frame recorded)"
+        print(f"recorded {meta['frames']} frames to {parts} (+ {args.output.name}.meta.json)")
+    return 0
+
+
+# -- decode and stats ----------------------------------------------------------------------------
+
+
+def run_decode(args: argparse.Namespace) -> int:
+    from tools.trace.decode import OK, Formatter, TraceDecoder, write_csv, write_jsonl, write_table
+    from tools.trace.files import atomic_output
+
+    max_delta, _ = _protocol_settings(args)
+    src = _Input(args)
+    decoder = TraceDecoder(src.codec, max_delta_counter=max_delta)
+    rows: Any = decoder.rows(src.frames(), src.selection)
+    if args.errors_only:
+        rows = (r for r in rows if r.status != OK or r.lost_before)
+    fmt = Formatter(src.catalog, src.selection, labels=not args.numeric)
+    write: Callable[..., int] = {"table": write_table, "csv": write_csv,
+                                 "jsonl": lambda r, f, o, **kw: write_jsonl(r, f, o, catalog=src.catalog, **kw)}[args.format]
+    if args.output:
+        with atomic_output(args.output) as tmp, tmp.open("w", encoding="utf-8", newline="") as out:
+            write(rows, fmt, out)
+    else:
+        write(rows, fmt, sys.stdout, flush=src.streaming)
+    _warn(src.warnings(decoder.receiver))
+    return 0
+
+
+def run_stats(args: argparse.Namespace) -> int:
+    from tools.trace.decode import TraceDecoder
+    from tools.trace.stats import collect, format_text
+
+    max_delta, config_bitrate = _protocol_settings(args)
+    src = _Input(args)
+    recorded_bitrate = next((m.get("bitrate_bit_s") for m in src.sidecars if m.get("bitrate_bit_s")), None)
+    bitrate = args.bitrate or recorded_bitrate or config_bitrate
+    decoder = TraceDecoder(src.codec, max_delta_counter=max_delta)
+    result = collect(decoder.rows(src.frames(), src.selection), src.catalog, bitrate)
+    warnings = src.warnings(decoder.receiver)
+    result = {"input": src.report.as_dict(), "warnings": warnings, **result}
+    if args.json:
+        print_json(result)
+    else:
+        print(format_text(result), end="")
+        _warn(warnings)
+    return 0
+
+
+def run_plot(args: argparse.Namespace) -> int:
+    from tools.trace.decode import Formatter, TraceDecoder
+    from tools.trace.plot import plot_png
+
+    max_delta, _ = _protocol_settings(args)
+    src = _Input(args)
+    decoder = TraceDecoder(src.codec, max_delta_counter=max_delta)
+    fmt = Formatter(src.catalog, src.selection, labels=False)
+    title = args.title or ", ".join(Path(f).name for f in args.files)
+    result = plot_png(decoder.rows(src.frames(), src.selection), fmt, args.output, title=title)
+    warnings = src.warnings(decoder.receiver)
+    if args.json:
+        print_json({**result, "input": src.report.as_dict(), "warnings": warnings})
+    else:
+        print(f"plotted {len(result['signals'])} signal(s), {result['points']} points, {result['bad_frames']} bad frame(s) "
+              f"marked, to {result['file']}")
+        _warn(warnings)
+    return 0
+
+
+# -- replay --------------------------------------------------------------------------------------
+
+
+def run_replay(args: argparse.Namespace) -> int:
+    from protocol.bus import open_bus
+    from protocol.clock import MonotonicClock
+    from tools.trace import TraceError
+    from tools.trace.decode import TraceDecoder
+    from tools.trace.replay import ReplayOptions, replay
+
+    cfg = load_cli_config(args)
+    if cfg.bus.interface == "virtual":
+        raise TraceError("a virtual bus lives inside one process: replay onto socketcan (--bus socketcan --channel vcan0)")
+    src = _Input(args, role=args.role)
+    decoder = TraceDecoder(src.codec, max_delta_counter=cfg.protocol.max_delta_counter)
+    frames = [row.frame for row in decoder.rows(src.frames(), src.selection)]
+    options = ReplayOptions(speed=args.speed, loops=args.loop, max_gap_s=args.skip_gaps, catch_up=args.catch_up,
+                            spin_s=args.spin_us / 1e6)
+    warnings = src.report.warnings()
+    if args.realtime:
+        from controller.timing import realtime_setup
+
+        warnings += realtime_setup().warnings
+    with StopSignals() as stop:
+        bus = open_bus(cfg.bus)
+        try:
+            report = replay(frames, bus.send, MonotonicClock(), options, stop=lambda: stop.requested)
+        finally:
+            bus.shutdown()
+    result = {"bus": {"interface": cfg.bus.interface, "channel": cfg.bus.channel}, "role": args.role,
+              "options": {"speed": args.speed, "loops": args.loop, "skip_gaps_s": args.skip_gaps, "catch_up": args.catch_up,
+                          "spin_us": args.spin_us, "realtime": args.realtime},
+              **report.as_dict(), "input": src.report.as_dict(), "warnings": warnings}
+    if args.json:
+        print_json(result)
+    else:
+        late = result["lateness_us"] or {"p50": 0, "p99": 0, "max": 0}
+        print(f"replayed {result['sent']} of {result['frames_in_trace']} frames ({args.role}) onto {cfg.bus.channel}, "
+              f"{result['loops_done']} loop(s){' (stopped)' if result['stopped'] else ''}: lateness p50 {late['p50']:.0f} us, "
+              f"p99 {late['p99']:.0f} us, max {late['max']:.0f} us; {result['late_frames_over_1ms']} frame(s) over 1 ms late, "
+              f"{result['send_failures']} send failure(s)")
+        _warn(result["warnings"])
+    return 0 if result["send_failures"] == 0 else 1
+
+
+# -- resim ---------------------------------------------------------------------------------------
+
+
+def run_resim(args: argparse.Namespace) -> int:
+    from config import default_config_path, load_config, parse_override, with_overrides
+    from protocol.catalog import default_catalog
+    from protocol.codec import Codec
+    from tools.trace import TraceError
+    from tools.trace.files import config_hash, read_sidecar
+    from tools.trace.reader import ReadReport, check_readable, read_frames
+    from tools.trace.resim import format_text, resimulate
+
+    check_readable(args.files)
+    if "-" in args.files:
+        raise TraceError("resim reads files, not standard input")
+    cfg = load_config(args.config or default_config_path())
+    recorded_cfg_hash = config_hash(cfg)
+    if args.set:
+        cfg = with_overrides(cfg, dict(parse_override(s) for s in args.set))
+    if cfg.controller is None:
+        raise TraceError("the configuration has no controller section to re-simulate")
+    meta = read_sidecar(args.files[0]) or {}
+    warnings = []
+    if meta.get("config_sha256") and meta["config_sha256"] != recorded_cfg_hash:
+        warnings.append(f"the configuration differs from the recording's (sha256 {meta['config_sha256'][:12]} recorded, "
+                        f"{recorded_cfg_hash[:12]} given)")
+    if args.no_request_walk:
+        walk_tick = None
+    elif args.request_walk_tick is not None:
+        walk_tick = args.request_walk_tick
+    else:
+        walk_tick = ((meta.get("source") or {}).get("operator") or {}).get("request_walk_tick")
+        if walk_tick is None:
+            warnings.append("no sidecar says when the operator started walking: none assumed (--request-walk-tick sets it)")
+    report = ReadReport()
+    result = resimulate(read_frames(args.files, report), cfg.controller, codec=Codec(default_catalog()),
+                        max_delta_counter=cfg.protocol.max_delta_counter, request_walk_tick=walk_tick).as_dict()
+    warnings = report.warnings() + warnings
+    result = {"files": args.files, "overrides": args.set, "request_walk_tick": walk_tick, **result,
+              "input": report.as_dict(), "warnings": warnings}
+    if args.json:
+        print_json(result)
+    else:
+        print(format_text(result), end="")
+        _warn(warnings)
+    return 0 if result["reproduced"] else 1

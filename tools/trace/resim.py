@@ -1,0 +1,194 @@
+"""Re-simulation: the node frames of a recorded lock-step run fed into a fresh controller, tick by
+tick, and the frames it would send compared with the ones the recorded controller sent.
+
+The trace is cut at its SYNC frames: the node frames after SYNC(k) (and, for the first tick, the
+boot-ups before it) are what :class:`controller.loop.LockstepLoop` read in tick ``k``. They go
+through a :class:`protocol.e2e.Receiver` with the configured ``max_delta_counter`` into
+:meth:`ControllerCore.receive`, then :meth:`ControllerCore.tick` gives the tick's frames, plus
+the controller's heartbeat on the DBC's schedule, as the loop sends them. Both sides are compared
+on the wire's grid (the new values encoded and decoded with the DBC), message by message and
+signal by signal; the first divergence names the tick, the message, the signal and both values.
+This is how a controller change is regression-tested against recorded sessions: the recorded
+run must be reproduced with zero divergence by the controller that recorded it.
+
+The operator's start (``request_walk``) is not on the bus: the recording's sidecar gives its
+tick (``aider-exo trace record --walk`` writes it), or the caller does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+from protocol.codec import Codec, Decoded
+from protocol.e2e import Receiver
+from protocol.errors import EncodeError
+from tools.trace.decode import decimals
+from tools.trace.reader import Frame
+
+MAX_LISTED = 10
+
+
+@dataclass
+class Divergence:
+    tick: int
+    message: str
+    signal: str | None  # None: the message itself is missing or extra
+    recorded: Any
+    resim: Any
+    unit: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"tick": self.tick, "message": self.message, "signal": self.signal, "recorded": self.recorded,
+                "resim": self.resim, "unit": self.unit}
+
+    def text(self) -> str:
+        unit = f" {self.unit}" if self.unit else ""
+        where = f"{self.message}.{self.signal}" if self.signal else self.message
+        return f"tick {self.tick}: {where}: recorded {self.recorded}{unit}, resim {self.resim}{unit}"
+
+
+@dataclass
+class ResimReport:
+    ticks: int = 0
+    frames_compared: int = 0
+    signals_compared: int = 0
+    divergent_ticks: int = 0
+    divergences: list[Divergence] = field(default_factory=list)  # the first MAX_LISTED
+    node_frames_fed: int = 0
+    node_frames_rejected: int = 0
+    final_state: str | None = None
+
+    @property
+    def first(self) -> Divergence | None:
+        return self.divergences[0] if self.divergences else None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "ticks": self.ticks, "frames_compared": self.frames_compared, "signals_compared": self.signals_compared,
+            "divergent_ticks": self.divergent_ticks, "reproduced": self.ticks > 0 and self.divergent_ticks == 0,
+            "first_divergence": self.first.as_dict() if self.first else None,
+            "divergences": [d.as_dict() for d in self.divergences],
+            "node_frames_fed": self.node_frames_fed, "node_frames_rejected": self.node_frames_rejected,
+            "final_state": self.final_state,
+        }
+
+
+@dataclass
+class Tick:
+    number: int
+    node_frames: list[Frame]
+    controller_frames: list[Frame]
+
+
+def ticks_of(frames: Iterable[Frame], codec: Codec) -> Iterator[Tick]:
+    """The trace cut at its SYNCs; frames before the first SYNC belong to the first tick."""
+    sync = codec.spec("SYNC")
+    controller = sync.sender
+    current: Tick | None = None
+    before: list[Frame] = []
+    for frame in frames:
+        spec = codec.catalog.by_id(frame.arbitration_id) if not frame.is_extended_id else None
+        if spec is sync:
+            decoded = codec.decode(frame.arbitration_id, frame.data)
+            if type(decoded) is not Decoded:
+                continue  # a SYNC that fails its check was not acted on by the nodes either
+            if current is not None:
+                yield current
+            current = Tick(decoded.values.tick, before, [])
+            before = []
+        elif current is None:
+            before.append(frame)
+        elif spec is not None and spec.sender == controller:
+            current.controller_frames.append(frame)
+        else:
+            current.node_frames.append(frame)
+    if current is not None:
+        yield current
+
+
+def _quantized(codec: Codec, name: str, values: tuple) -> tuple | str:
+    """``values`` as they would be on the wire (encoded and decoded), or why they cannot be."""
+    spec = codec.spec(name)
+    try:
+        decoded = codec.decode(spec.frame_id, codec.encode(spec, values, 0))
+    except EncodeError as exc:
+        return f"unencodable ({exc})"
+    return tuple(decoded.values) if type(decoded) is Decoded else f"undecodable ({decoded.detail})"
+
+
+def _compare(codec: Codec, tick: int, recorded: list[tuple[str, Any]], resim: list[tuple[str, tuple]],
+             report: ResimReport) -> list[Divergence]:
+    found: list[Divergence] = []
+    for i in range(max(len(recorded), len(resim))):
+        rec = recorded[i] if i < len(recorded) else None
+        new = resim[i] if i < len(resim) else None
+        if rec is None or new is None or rec[0] != new[0]:
+            found.append(Divergence(tick, (rec or new)[0], None, rec[0] if rec else "(none)", new[0] if new else "(none)"))
+            break  # the sequences no longer line up
+        report.frames_compared += 1
+        spec = codec.spec(rec[0])
+        values = _quantized(codec, new[0], new[1])
+        if isinstance(values, str):
+            found.append(Divergence(tick, rec[0], None, "sent", values))
+            continue
+        for sig, a, b in zip(spec.signals, rec[1], values):
+            report.signals_compared += 1
+            if a != b:
+                digits = decimals(sig)
+                found.append(Divergence(tick, rec[0], sig.name, round(a, digits), round(b, digits), sig.unit))
+    return found
+
+
+def resimulate(frames: Iterable[Frame], controller_cfg: Any, *, codec: Codec, max_delta_counter: int,
+               request_walk_tick: int | None) -> ResimReport:
+    """Feed a fresh :class:`ControllerCore` the recorded node frames and compare (see the module doc)."""
+    from controller.core import ControllerCore
+
+    core = ControllerCore(controller_cfg, policy=None)
+    rx = Receiver(codec, max_delta_counter=max_delta_counter)
+    heartbeat = codec.spec("CONTROLLER_HEARTBEAT")
+    report = ResimReport()
+    for tick in ticks_of(frames, codec):
+        k = tick.number
+        if request_walk_tick is not None and k == request_walk_tick:
+            core.request_walk()
+        for frame in tick.node_frames:
+            result = rx.receive(frame)
+            report.node_frames_fed += 1
+            if type(result) is Decoded:
+                core.receive(result, k)
+            else:
+                report.node_frames_rejected += 1
+        result = core.tick(k)
+        sent = list(result.frames)
+        if heartbeat.sent_in_tick(k):
+            sent.append((heartbeat.name, (int(result.state),)))
+        recorded = []
+        for frame in tick.controller_frames:
+            decoded = codec.decode(frame.arbitration_id, frame.data)
+            recorded.append((decoded.name, tuple(decoded.values)) if type(decoded) is Decoded
+                            else (f"0x{frame.arbitration_id:03X} ({decoded.reason.value})", ()))
+        found = _compare(codec, k, recorded, sent, report)
+        if found:
+            report.divergent_ticks += 1
+            report.divergences += found[: MAX_LISTED - len(report.divergences)]
+        report.ticks += 1
+        report.final_state = result.state.name
+    return report
+
+
+def format_text(r: dict[str, Any]) -> str:
+    lines = [f"resim: {r['ticks']} ticks, {r['frames_compared']} controller frames and {r['signals_compared']} signals "
+             f"compared; {r['node_frames_fed']} node frames fed ({r['node_frames_rejected']} rejected by the receiver); "
+             f"final state {r['final_state']}"]
+    if r["reproduced"]:
+        lines.append("result: reproduced, zero divergence")
+    elif r["ticks"] == 0:
+        lines.append("result: nothing to compare (no SYNC in the trace)")
+    else:
+        first = Divergence(**r["first_divergence"])
+        lines.append(f"result: DIVERGED in {r['divergent_ticks']} of {r['ticks']} ticks; first divergence at {first.text()}")
+        lines += [f"  {Divergence(**d).text()}" for d in r["divergences"][1:]]
+    return "\n".join(lines) + "\n"
