@@ -67,10 +67,9 @@ class Selection:
             raise TraceError(f"the time range ends ({self.end_s} s) before it starts ({self.start_s} s)")
         specs = list(catalog.messages)
         extra_ids: set[int] = set()
-        for what, names in (("node", self.nodes), ("sender", self.senders)):
-            for name in names:
-                if name.upper() not in catalog.node_ids:
-                    raise TraceError(f"no node {name!r} in the DBC; nodes: {', '.join(catalog.nodes)}")
+        for name in self.nodes + self.senders:
+            if name.upper() not in catalog.node_ids:
+                raise TraceError(f"no node {name!r} in the DBC; nodes: {', '.join(catalog.nodes)}")
         if self.nodes:
             wanted = {n.upper() for n in self.nodes}
             specs = [m for m in specs if m.sender in wanted or (len(m.receivers) == 1 and m.receivers[0] in wanted)]

@@ -114,7 +114,6 @@ def recording_metadata(cfg: Config, catalog: Catalog, *, seed: int | None, bitra
                        source: dict[str, Any]) -> dict[str, Any]:
     """The sidecar's fields known when a recording starts (the frames are added at its end)."""
     return {
-        "schema": SIDECAR_SCHEMA,
         "software_version": software_version(),
         "config_sha256": config_hash(cfg),
         "seed": seed,

@@ -28,7 +28,7 @@ from protocol.catalog import TICK_MS
 from protocol.clock import Clock
 from protocol.codec import Codec, Decoded
 from tools.trace import TraceError
-from tools.trace.files import partial_path, sidecar_path, write_json
+from tools.trace.files import SIDECAR_SCHEMA, partial_path, sidecar_path, write_json
 
 WRITE_SUFFIXES = (".log", ".asc", ".blf", ".trc", ".csv", ".mf4")
 
@@ -103,7 +103,7 @@ class TraceWriter:
     def close(self, metadata: dict[str, Any]) -> dict[str, Any]:
         """Close the last part and write the sidecar; returns the sidecar's content."""
         self._close_part()
-        meta = {**metadata, "frames": self.frames, "first_timestamp": self.first_timestamp,
+        meta = {"schema": SIDECAR_SCHEMA, **metadata, "frames": self.frames, "first_timestamp": self.first_timestamp,
                 "last_timestamp": self.last_timestamp, "parts": [p.name for p in self.parts]}
         write_json(sidecar_path(self.path), meta)
         return meta
