@@ -200,6 +200,17 @@ def test_the_wrong_dbc_says_so(tmp_path, capsys):
     assert err.startswith("aider-exo: error: ") and "Traceback" not in err and len(err.strip().splitlines()) == 1
 
 
+def test_a_recording_made_with_another_dbc_says_so(tmp_path, capsys):
+    log = _log(FRAMES, tmp_path / "old.log")
+    meta = {"schema": "aider-exo trace metadata 1", "dbc": {"sha256": "0" * 64, "protocol_version": 0}}
+    (tmp_path / "old.log.meta.json").write_text(json.dumps(meta))
+    assert main(["trace", "stats", str(log)]) == 0
+    assert "recorded with another DBC (protocol version 0" in capsys.readouterr().err
+    (tmp_path / "old.log.meta.json").write_text("{not json")
+    assert main(["trace", "decode", str(log)]) == 1
+    assert "unreadable metadata sidecar" in capsys.readouterr().err
+
+
 def test_stdin_is_decoded_as_it_streams(monkeypatch, capsys):
     lines = "".join(f"({f.timestamp:.6f}) vcan0 {f.arbitration_id:03X}#{f.data.hex()}\n" for f in FRAMES[:5])
     monkeypatch.setattr("sys.stdin", io.StringIO(lines))
@@ -223,3 +234,33 @@ def test_python_can_message_and_frame_agree():
     msg = can.Message(timestamp=1.0, arbitration_id=0x181, data=b"\x01\x02", is_extended_id=False)
     frame = Frame.from_message(msg)
     assert frame.to_message().equals(msg, timestamp_delta=None) and frame.data == b"\x01\x02"
+
+
+@pytest.mark.parametrize("labels", [True, False])
+def test_the_compiled_lines_say_what_the_general_path_says_for_every_message(labels):
+    """Each format's per-message template (the fast path) against the values of Formatter.signals."""
+    import numpy as np
+
+    from protocol.e2e import Transmitter
+    from protocol.synthetic import random_record
+
+    rng = np.random.default_rng(7)
+    tx = Transmitter(CODEC)
+    frames = [Frame(0.5 + i * 0.001, m.frame_id, tx.payload(m, random_record(m, rng)), "vcan0")
+              for i, m in enumerate(CATALOG.messages * 3)]
+    rows, _ = _rows(frames)
+    for selection in (None, Selection(signals=("*_rad", "tick", "mode")).compile(CATALOG)):
+        fmt = Formatter(CATALOG, selection, labels=labels)
+        for row in rows:
+            assert row.status == "ok"
+            expected = fmt.signals(row)
+            obj = json.loads(fmt.line("jsonl", row))
+            assert obj["message"] == row.spec.name and obj["counter"] == row.counter and obj["t"] == round(row.time_s, 6)
+            assert list(obj["signals"].items()) == [(sig.name, value) for sig, value in expected]
+            cells = list(csv.reader(io.StringIO(fmt.line("csv", row))))
+            assert [(c[8], c[9], c[10]) for c in cells if c[8]] == [(s.name, str(v) if isinstance(v, str) else c[9], s.unit)
+                                                                     for (s, v), c in zip(expected, cells)]
+            assert all(float(c[9]) == pytest.approx(v) for (s, v), c in zip(expected, cells) if not isinstance(v, str))
+            text = fmt.line("table", row)
+            for sig, value in expected:
+                assert f"{sig.name}={value if isinstance(value, str) else ''}" in text

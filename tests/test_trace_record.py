@@ -48,6 +48,7 @@ def test_rotation_by_trace_time_and_by_size(tmp_path):
     meta = writer.close({})
     assert meta["parts"] == ["t_000.log", "t_001.log", "t_002.log", "t_003.log"]
     parts = [tmp_path / p for p in meta["parts"]]
+    assert read_sidecar(parts[2])["parts"] == meta["parts"]  # a part finds the recording's sidecar
     assert [f.data for f in _read(parts)] == [f.data for f in FRAMES]
     assert all(f.timestamp - _read([p])[0].timestamp < 0.25 for p in parts for f in _read([p]))
     writer = TraceWriter(tmp_path / "s.asc", rotate_bytes=20_000)
@@ -75,6 +76,11 @@ def test_outputs_that_cannot_be_written_are_refused_with_one_line(tmp_path):
         check_writable(tmp_path / "x.pcap", overwrite=False)
     with pytest.raises(TraceError, match="no such folder"):
         check_writable(tmp_path / "none" / "x.log", overwrite=False)
+    import importlib.util
+
+    if importlib.util.find_spec("asammdf") is None:
+        with pytest.raises(TraceError, match="recording .mf4 needs asammdf"):
+            check_writable(tmp_path / "x.mf4", overwrite=False)
 
 
 def test_recording_a_live_bus_until_a_count(tmp_path):

@@ -1,9 +1,8 @@
 """Interop over a real SocketCAN vcan0 with can-utils and cantools.
 
 can-utils' canplayer plays a lock-step trace onto vcan0 while ``aider-exo trace record`` records
-the bus (and its sidecar); then
-canplayer plays our recording while candump (``-L``) captures it: candump sees the same frames
-with the same timing. Our replay sends the recording's controller frames (the role that drives
+the bus (and its sidecar); then canplayer plays our recording while candump (``-L``) captures it:
+candump sees the same frames with the same timing. Our replay sends the recording's controller frames (the role that drives
 live nodes) while candump captures them. We decode candump's log, every value as sent, and
 ``cantools decode`` with our DBC agrees with our decode on every signal. The traffic is the
 protocol's schedule made up from the DBC (no simulation in the sandbox, whose CPU is several

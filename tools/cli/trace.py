@@ -111,61 +111,13 @@ def _add_input(p: argparse.ArgumentParser, *, signals_required: bool = False, co
 # -- shared input handling -----------------------------------------------------------------------
 
 
-class _Input:
-    """The trace files, the DBC, the selection and what reading them met."""
+def _input(args: argparse.Namespace, *, role: str = "all") -> Any:
+    from tools.trace.decode import Selection
+    from tools.trace.source import TraceInput
 
-    def __init__(self, args: argparse.Namespace, *, role: str = "all") -> None:
-        from protocol.catalog import default_catalog, load_catalog
-        from protocol.codec import Codec
-        from tools.trace.decode import Selection
-        from tools.trace.files import read_sidecar
-        from tools.trace.reader import ReadReport, check_readable
-
-        check_readable(args.files)
-        if args.files.count("-") > 1 or ("-" in args.files and len(args.files) > 1):
-            from tools.trace import TraceError
-
-            raise TraceError("standard input (-) can only be the one trace")
-        self.files = args.files
-        self.catalog = load_catalog(args.dbc) if getattr(args, "dbc", None) else default_catalog()
-        self.codec = Codec(self.catalog)
-        self.sidecars = [m for m in (read_sidecar(f) for f in args.files) if m is not None]
-        controller = self.catalog.by_name("SYNC").sender  # the DBC's sender of SYNC is the controller
-        senders = {"all": (), "nodes": tuple(n for n in self.catalog.nodes if n != controller), "controller": (controller,)}[role]
-        self.selection = Selection(nodes=tuple(args.node), messages=tuple(args.message), signals=tuple(args.signal),
-                                   start_s=args.start, end_s=args.end, senders=senders).compile(self.catalog)
-        self.report = ReadReport()
-        self.streaming = args.files == ["-"]
-
-    def frames(self) -> Any:
-        from tools.trace.reader import read_frames
-
-        return read_frames(self.files, self.report)
-
-    def warnings(self, receiver: Any = None) -> list[str]:
-        from tools.trace.files import dbc_info
-
-        out = self.report.warnings()
-        if receiver is not None and self.report.frames:
-            rejected = receiver.stats.rejected
-            from protocol.codec import RejectReason
-
-            unknown = rejected.get(RejectReason.UNKNOWN_ID, 0)
-            known = self.report.frames - unknown
-            if known == 0:
-                out.append(f"none of the {self.report.frames} frames has an ID of {self.catalog.source}: "
-                           "a trace of another bus, or the wrong DBC?")
-            elif rejected.get(RejectReason.BAD_CRC, 0) * 2 > known:
-                out.append(f"{rejected[RejectReason.BAD_CRC]} of the {known} frames with known IDs fail their CRC: "
-                           "the wrong DBC, or another protocol version?")
-        ours = dbc_info(self.catalog)["sha256"]
-        for meta in self.sidecars:
-            theirs = (meta.get("dbc") or {}).get("sha256")
-            if theirs and ours and theirs != ours:
-                out.append(f"the trace was recorded with another DBC (protocol version {meta['dbc'].get('protocol_version')}, "
-                           f"sha256 {theirs[:12]}); decoding with {self.catalog.source} (sha256 {ours[:12]})")
-                break
-        return out
+    selection = Selection(nodes=tuple(args.node), messages=tuple(args.message), signals=tuple(args.signal),
+                          start_s=args.start, end_s=args.end)
+    return TraceInput(args.files, dbc=args.dbc, selection=selection, role=role)
 
 
 def _warn(lines: list[str]) -> None:
@@ -241,7 +193,7 @@ def run_decode(args: argparse.Namespace) -> int:
     from tools.trace.files import atomic_output
 
     max_delta, _ = _protocol_settings(args)
-    src = _Input(args)
+    src = _input(args)
     decoder = TraceDecoder(src.codec, max_delta_counter=max_delta)
     rows: Any = decoder.rows(src.frames(), src.selection)
     if args.errors_only:
@@ -263,7 +215,7 @@ def run_stats(args: argparse.Namespace) -> int:
     from tools.trace.stats import collect, format_text
 
     max_delta, config_bitrate = _protocol_settings(args)
-    src = _Input(args)
+    src = _input(args)
     recorded_bitrate = next((m.get("bitrate_bit_s") for m in src.sidecars if m.get("bitrate_bit_s")), None)
     bitrate = args.bitrate or recorded_bitrate or config_bitrate
     decoder = TraceDecoder(src.codec, max_delta_counter=max_delta)
@@ -283,7 +235,7 @@ def run_plot(args: argparse.Namespace) -> int:
     from tools.trace.plot import plot_png
 
     max_delta, _ = _protocol_settings(args)
-    src = _Input(args)
+    src = _input(args)
     decoder = TraceDecoder(src.codec, max_delta_counter=max_delta)
     fmt = Formatter(src.catalog, src.selection, labels=False)
     title = args.title or ", ".join(Path(f).name for f in args.files)
@@ -311,7 +263,7 @@ def run_replay(args: argparse.Namespace) -> int:
     cfg = load_cli_config(args)
     if cfg.bus.interface == "virtual":
         raise TraceError("a virtual bus lives inside one process: replay onto socketcan (--bus socketcan --channel vcan0)")
-    src = _Input(args, role=args.role)
+    src = _input(args, role=args.role)
     decoder = TraceDecoder(src.codec, max_delta_counter=cfg.protocol.max_delta_counter)
     frames = [row.frame for row in decoder.rows(src.frames(), src.selection)]
     options = ReplayOptions(speed=args.speed, loops=args.loop, max_gap_s=args.skip_gaps, catch_up=args.catch_up,
@@ -348,27 +300,23 @@ def run_replay(args: argparse.Namespace) -> int:
 
 def run_resim(args: argparse.Namespace) -> int:
     from config import default_config_path, load_config, parse_override, with_overrides
-    from protocol.catalog import default_catalog
-    from protocol.codec import Codec
     from tools.trace import TraceError
-    from tools.trace.files import config_hash, read_sidecar
-    from tools.trace.reader import ReadReport, check_readable, read_frames
+    from tools.trace.files import config_hash
     from tools.trace.resim import format_text, resimulate
+    from tools.trace.source import TraceInput
 
-    check_readable(args.files)
-    if "-" in args.files:
-        raise TraceError("resim reads files, not standard input")
+    src = TraceInput(args.files, stdin=False)
     cfg = load_config(args.config or default_config_path())
-    recorded_cfg_hash = config_hash(cfg)
+    given_hash = config_hash(cfg)
     if args.set:
         cfg = with_overrides(cfg, dict(parse_override(s) for s in args.set))
     if cfg.controller is None:
         raise TraceError("the configuration has no controller section to re-simulate")
-    meta = read_sidecar(args.files[0]) or {}
+    meta = src.metadata
     warnings = []
-    if meta.get("config_sha256") and meta["config_sha256"] != recorded_cfg_hash:
+    if meta.get("config_sha256") and meta["config_sha256"] != given_hash:
         warnings.append(f"the configuration differs from the recording's (sha256 {meta['config_sha256'][:12]} recorded, "
-                        f"{recorded_cfg_hash[:12]} given)")
+                        f"{given_hash[:12]} given)")
     if args.no_request_walk:
         walk_tick = None
     elif args.request_walk_tick is not None:
@@ -377,12 +325,11 @@ def run_resim(args: argparse.Namespace) -> int:
         walk_tick = ((meta.get("source") or {}).get("operator") or {}).get("request_walk_tick")
         if walk_tick is None:
             warnings.append("no sidecar says when the operator started walking: none assumed (--request-walk-tick sets it)")
-    report = ReadReport()
-    result = resimulate(read_frames(args.files, report), cfg.controller, codec=Codec(default_catalog()),
-                        max_delta_counter=cfg.protocol.max_delta_counter, request_walk_tick=walk_tick).as_dict()
-    warnings = report.warnings() + warnings
+    result = resimulate(src.frames(), cfg.controller, codec=src.codec, max_delta_counter=cfg.protocol.max_delta_counter,
+                        request_walk_tick=walk_tick).as_dict()
+    warnings = src.warnings() + warnings
     result = {"files": args.files, "overrides": args.set, "request_walk_tick": walk_tick, **result,
-              "input": report.as_dict(), "warnings": warnings}
+              "input": src.report.as_dict(), "warnings": warnings}
     if args.json:
         print_json(result)
     else:

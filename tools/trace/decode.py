@@ -178,15 +178,73 @@ def decimals(sig: SignalSpec) -> int:
     return 0 if sig.is_integer else max(_digits(sig.scale), _digits(sig.offset))
 
 
+def _csv_cell(text: str) -> str:
+    return '"' + text.replace('"', '""') + '"' if any(c in text for c in ',"\n\r') else text
+
+
+def _braces(text: str) -> str:
+    return text.replace("{", "{{").replace("}", "}}")
+
+
+# Arguments of every compiled line: 0 time since the first frame, 1 timestamp, 2 counter, 3 frames
+# lost before, 4 payload in hex, then the shown signals' values from 5 on.
+_FIRST_VALUE = 5
+
+
 class Formatter:
-    """Per-signal presentation compiled once from the DBC: decimals, units, enumeration labels."""
+    """Presentation compiled once per message from the DBC: which signals, their decimals, units
+    and enumeration labels, and for each output format a line template of a frame that passed
+    every check (the hot path; other frames take the general path of each writer)."""
+
+    KINDS = ("table", "csv", "jsonl")
 
     def __init__(self, catalog: Catalog, selection: CompiledSelection | None, *, labels: bool = True) -> None:
         self.labels = labels
         self._signals: dict[int, list[tuple[int, SignalSpec, int]]] = {}
+        self._lines: dict[str, dict[int, tuple[str, tuple[int, ...] | None, list[tuple[int, dict[int, str]]]]]] = {
+            kind: {} for kind in self.KINDS}
         for spec in catalog.messages:
             indices = selection.signal_indices(spec) if selection is not None else range(len(spec.signals))
-            self._signals[spec.frame_id] = [(k, spec.signals[k], decimals(spec.signals[k])) for k in indices]
+            shown = [(k, spec.signals[k], decimals(spec.signals[k])) for k in indices]
+            self._signals[spec.frame_id] = shown
+            picks = None if len(shown) == len(spec.signals) else tuple(k for k, _, _ in shown)
+            for kind in self.KINDS:
+                template, names = self._template(kind, spec, shown)
+                self._lines[kind][spec.frame_id] = (template, picks, names)
+
+    def _template(self, kind: str, spec: MessageSpec, shown: list[tuple[int, SignalSpec, int]]) -> tuple[str, list]:
+        fields, names = [], []
+        for i, (_, sig, digits) in enumerate(shown):
+            arg = _FIRST_VALUE + i
+            if self.labels and sig.choices is not None:
+                quote = json.dumps if kind == "jsonl" else (_csv_cell if kind == "csv" else str)
+                names.append((i, {raw: _braces(quote(label)) for raw, label in sig.choices.items()}))
+                fields.append((sig, f"{{{arg}}}"))
+            else:
+                fields.append((sig, f"{{{arg}:.{digits}f}}" if digits else f"{{{arg}:d}}"))
+        ident = f"{spec.frame_id:03X}"
+        if kind == "table":
+            body = "  ".join(f"{_braces(sig.name)}={value}{_braces(' ' + sig.unit) if sig.unit else ''}" for sig, value in fields)
+            return f"{{0:12.6f}}  {ident:>3}  {_braces(spec.name):<22} {_braces(spec.sender):<11}{{2:>3}}  {body}\n", names
+        if kind == "csv":
+            head = f"{{0:.6f}},{{1:.6f}},0x{ident},{_braces(_csv_cell(spec.name))},{_braces(_csv_cell(spec.sender))},{{2}},ok,{{3}}"
+            return "".join(f"{head},{_braces(_csv_cell(sig.name))},{value},{_braces(_csv_cell(sig.unit))},{{4}}\n"
+                           for sig, value in fields) or f"{head},,,,{{4}}\n", names
+        signals = ", ".join(f"{_braces(json.dumps(sig.name))}: {value}" for sig, value in fields)
+        return (f'{{{{"t": {{0:.6f}}, "ts": {{1!r}}, "id": {spec.frame_id}, "message": {_braces(json.dumps(spec.name))}, '
+                f'"sender": {_braces(json.dumps(spec.sender))}, "counter": {{2}}, "status": "ok", "lost_before": {{3}}, '
+                f'"signals": {{{{{signals}}}}}, "data": "{{4}}"}}}}\n'), names
+
+    def line(self, kind: str, row: Row) -> str:
+        """The compiled line of a frame that passed every check (``row.status`` is ``ok``)."""
+        template, picks, names = self._lines[kind][row.spec.frame_id]
+        values = row.values if picks is None else [row.values[k] for k in picks]
+        if names:
+            values = list(values)
+            for i, labels in names:
+                values[i] = labels[values[i]]
+        return template.format(row.time_s, row.frame.timestamp, row.counter, row.lost_before,
+                               row.frame.data.hex().upper(), *values)
 
     def signals(self, row: Row) -> list[tuple[SignalSpec, Any]]:
         """(signal, value) of the shown signals; labels for enumerations, values on their grid."""
@@ -212,25 +270,33 @@ def _mark(row: Row) -> str:
 def write_table(rows: Iterable[Row], fmt: Formatter, out: TextIO, *, flush: bool = False) -> int:
     n = 0
     out.write(f"{'time_s':>12}  {'id':>3}  {'message':<22} {'sender':<11}{'ctr':>3}  signals\n")
+    line = fmt.line
     for row in rows:
-        frame = row.frame
-        ident = f"{frame.arbitration_id:08X}" if frame.is_extended_id else f"{frame.arbitration_id:03X}"
-        if row.spec is None or row.values is None:
-            name = row.spec.name if row.spec is not None else "?"
-            sender = row.spec.sender if row.spec is not None else ""
-            body = f"[{len(frame.data)}] {frame.data.hex(' ').upper()}"
-            counter = ""
-        else:
-            name, sender = row.spec.name, row.spec.sender
-            counter = str(row.counter)
-            body = "  ".join(f"{sig.name}={value}{' ' + sig.unit if sig.unit else ''}" for sig, value in fmt.signals(row))
-        mark = _mark(row)
-        out.write(f"{row.time_s:12.6f}  {ident:>3}  {name:<22} {sender:<11}{counter:>3}  {body}{'  ' + mark if mark else ''}"
-                  f"{'  ' + row.detail if row.detail and row.status != UNKNOWN else ''}\n")
         n += 1
+        if row.status == OK and not row.lost_before:
+            out.write(line("table", row))
+        else:
+            out.write(_table_line(row, fmt))
         if flush:
             out.flush()
     return n
+
+
+def _table_line(row: Row, fmt: Formatter) -> str:
+    frame = row.frame
+    ident = f"{frame.arbitration_id:08X}" if frame.is_extended_id else f"{frame.arbitration_id:03X}"
+    if row.spec is None or row.values is None:
+        name = row.spec.name if row.spec is not None else "?"
+        sender = row.spec.sender if row.spec is not None else ""
+        body = f"[{len(frame.data)}] {frame.data.hex(' ').upper()}"
+        counter = ""
+    else:
+        name, sender = row.spec.name, row.spec.sender
+        counter = str(row.counter)
+        body = "  ".join(f"{sig.name}={value}{' ' + sig.unit if sig.unit else ''}" for sig, value in fmt.signals(row))
+    mark = _mark(row)
+    return (f"{row.time_s:12.6f}  {ident:>3}  {name:<22} {sender:<11}{counter:>3}  {body}{'  ' + mark if mark else ''}"
+            f"{'  ' + row.detail if row.detail and row.status != UNKNOWN else ''}\n")
 
 
 CSV_COLUMNS = ("time_s", "timestamp", "frame_id", "message", "sender", "counter", "status", "lost_before",
@@ -238,20 +304,25 @@ CSV_COLUMNS = ("time_s", "timestamp", "frame_id", "message", "sender", "counter"
 
 
 def write_csv(rows: Iterable[Row], fmt: Formatter, out: TextIO, *, flush: bool = False) -> int:
+    """One row per shown signal of a frame (one row without a signal for a frame not decodable)."""
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(CSV_COLUMNS)
     n = 0
+    line = fmt.line
     for row in rows:
-        frame = row.frame
-        head = [f"{row.time_s:.6f}", f"{frame.timestamp:.6f}", f"0x{frame.arbitration_id:03X}",
-                row.spec.name if row.spec else "", row.spec.sender if row.spec else "",
-                "" if row.counter is None else row.counter, row.status, row.lost_before]
-        if row.spec is None or row.values is None:
-            writer.writerow(head + ["", "", "", frame.data.hex().upper()])
-        else:
-            data = frame.data.hex().upper()
-            writer.writerows(head + [sig.name, value, sig.unit, data] for sig, value in fmt.signals(row))
         n += 1
+        if row.status == OK:
+            out.write(line("csv", row))
+        else:
+            frame = row.frame
+            head = [f"{row.time_s:.6f}", f"{frame.timestamp:.6f}", f"0x{frame.arbitration_id:03X}",
+                    row.spec.name if row.spec else "", row.spec.sender if row.spec else "",
+                    "" if row.counter is None else row.counter, row.status, row.lost_before]
+            data = frame.data.hex().upper()
+            if row.spec is None or row.values is None:
+                writer.writerow(head + ["", "", "", data])
+            else:
+                writer.writerows(head + [sig.name, value, sig.unit, data] for sig, value in fmt.signals(row))
         if flush:
             out.flush()
     return n
@@ -268,25 +339,26 @@ def write_jsonl(rows: Iterable[Row], fmt: Formatter, out: TextIO, *, catalog: Ca
         "fields": {"t": "s since the first frame", "ts": "s, the trace's timestamp", "id": "CAN ID",
                    "message": "DBC message (null: unknown ID)", "sender": "DBC sender", "counter": "alive counter",
                    "status": "ok or the receiver's rejection reason", "lost_before": "frames lost before this one",
-                   "signals": "physical values (null when not decodable)", "data": "payload, hex"},
+                   "signals": "physical values (null when not decodable)", "data": "payload, hex",
+                   "detail": "why a frame was rejected (only then)"},
         "units": {name: u for name, u in units.items() if u},
     }
     out.write(json.dumps(schema) + "\n")
-    dumps = json.dumps
     n = 0
+    line = fmt.line
     for row in rows:
-        frame = row.frame
-        obj: dict[str, Any] = {"t": round(row.time_s, 6), "ts": frame.timestamp, "id": frame.arbitration_id,
-                               "message": row.spec.name if row.spec else None,
-                               "sender": row.spec.sender if row.spec else None, "counter": row.counter,
-                               "status": row.status, "lost_before": row.lost_before,
-                               "signals": None if row.spec is None or row.values is None
-                               else {sig.name: value for sig, value in fmt.signals(row)},
-                               "data": frame.data.hex()}
-        if row.detail:
-            obj["detail"] = row.detail
-        out.write(dumps(obj) + "\n")
         n += 1
+        if row.status == OK:
+            out.write(line("jsonl", row))
+        else:
+            frame = row.frame
+            obj = {"t": round(row.time_s, 6), "ts": frame.timestamp, "id": frame.arbitration_id,
+                   "message": row.spec.name if row.spec else None, "sender": row.spec.sender if row.spec else None,
+                   "counter": row.counter, "status": row.status, "lost_before": row.lost_before,
+                   "signals": None if row.spec is None or row.values is None
+                   else {sig.name: value for sig, value in fmt.signals(row)},
+                   "data": frame.data.hex().upper(), "detail": row.detail}
+            out.write(json.dumps(obj) + "\n")
         if flush:
             out.flush()
     return n

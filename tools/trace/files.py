@@ -15,6 +15,7 @@ import hashlib
 import importlib.metadata
 import json
 import os
+import re
 import subprocess
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -65,11 +66,15 @@ def sidecar_path(trace: str | Path) -> Path:
 
 
 def read_sidecar(trace: str | Path) -> dict[str, Any] | None:
-    """The metadata of a recording, None when it has none; a broken sidecar is one clear error."""
+    """The metadata of a recording (of a rotated part ``NAME_007.EXT``: ``NAME.EXT``'s), None when
+    it has none; a broken sidecar is one clear error."""
     if str(trace) == "-":
         return None
-    path = sidecar_path(trace)
-    if not path.is_file():
+    trace = Path(trace)
+    rotated = re.fullmatch(r"(.+)_\d{3}", trace.stem)
+    candidates = [sidecar_path(trace)] + ([sidecar_path(trace.with_name(rotated.group(1) + trace.suffix))] if rotated else [])
+    path = next((c for c in candidates if c.is_file()), None)
+    if path is None:
         return None
     try:
         data = json.loads(path.read_text())
