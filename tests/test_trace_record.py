@@ -125,3 +125,19 @@ def walk_log(tmp_path_factory):
     path = tmp_path_factory.mktemp("walk") / "walk.log"
     assert main(["trace", "record", str(path), "--walk", "1", "--max-time", "1", "--seed", "3", "--json"]) == 0
     return path
+
+
+def test_a_bus_that_fails_ends_the_recording_with_what_it_holds(tmp_path):
+    class FailingBus:
+        def __init__(self):
+            self.left = list(FRAMES[:5])
+
+        def recv(self, timeout):
+            if not self.left:
+                raise can.CanOperationError("Network is down")
+            return self.left.pop(0).to_message()
+
+    writer = TraceWriter(tmp_path / "down.log")
+    ended = record_bus(FailingBus(), writer, MonotonicClock())
+    assert ended == "bus error: Network is down"
+    assert writer.close({})["frames"] == 5 and len(_read([tmp_path / "down.log"])) == 5

@@ -57,7 +57,8 @@ SPIN_S = 0.0002  # as `aider-exo trace replay` (its --spin-us default)
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=100_000, help="frames in the decode trace (default 100000)")
     parser.add_argument("--repeats", type=int, default=3, help="timed repeats of each decode variant (default 3)")
-    parser.add_argument("--cli-frames", type=int, default=20_000, help="frames for the two command lines (default 20000; 0 skips)")
+    parser.add_argument("--cli-frames", type=int, default=100_000,
+                        help="frames for the two command lines (default 100000, at most --frames; 0 skips)")
     parser.add_argument("--replay-seconds", type=float, default=2.0, help="trace time replayed by each player per round (default 2)")
     parser.add_argument("--rounds", type=int, default=3, help="replay rounds of each player (default 3)")
     parser.add_argument("--no-realtime", action="store_true",
@@ -131,15 +132,16 @@ def _decode(n_frames: int, repeats: int, cli_frames: int, clock: Clock) -> dict[
         variants = {"ours_file": ours_file, "ours_file_to_jsonl": ours_jsonl, "ours_in_memory": ours_memory,
                     "cantools_file": cantools_file, "cantools_in_memory": cantools_memory}
         results = {name: _rate(fn, repeats, clock) for name, fn in variants.items()}
-        cli = _cli(frames[:cli_frames], Path(tmp), clock) if cli_frames > 0 else None
+        cli = _cli(frames[:cli_frames], log if cli_frames >= len(frames) else None, Path(tmp), clock) if cli_frames > 0 else None
     return {"frames": len(frames), "repeats": repeats, "frames_per_s": results, "command_lines": cli,
             "speedup_file": round(results["ours_file"]["median"] / results["cantools_file"]["median"], 2),
             "speedup_in_memory": round(results["ours_in_memory"]["median"] / results["cantools_in_memory"]["median"], 2)}
 
 
-def _cli(frames: list[Frame], folder: Path, clock: Clock) -> dict[str, Any]:
-    log = folder / "cli.log"
-    _write_log(frames, log)
+def _cli(frames: list[Frame], log: Path | None, folder: Path, clock: Clock) -> dict[str, Any]:
+    if log is None:
+        log = folder / "cli.log"
+        _write_log(frames, log)
     aider = str(Path(sys.executable).with_name("aider-exo"))
     commands = {
         "aider-exo trace decode --format jsonl": ([aider, "trace", "decode", "--format", "jsonl", str(log)], None),

@@ -172,6 +172,9 @@ def run_record(args: argparse.Namespace) -> int:
                     bus.shutdown()
             source = {"kind": "bus", "ended_by": ended if ended != "stopped" else stop.name}
             timebase = "bus receive timestamps"
+    except OSError as exc:  # a full disk, a folder that went away
+        writer.abort()
+        raise TraceError(f"{args.output}: recording stopped, cannot write ({exc}); what was written keeps its .partial name") from None
     except BaseException:
         writer.abort()
         raise
@@ -189,6 +192,7 @@ def run_record(args: argparse.Namespace) -> int:
 
 
 def run_decode(args: argparse.Namespace) -> int:
+    from tools.trace import TraceError
     from tools.trace.decode import OK, Formatter, TraceDecoder, write_csv, write_jsonl, write_table
     from tools.trace.files import atomic_output
 
@@ -202,8 +206,11 @@ def run_decode(args: argparse.Namespace) -> int:
     write: Callable[..., int] = {"table": write_table, "csv": write_csv,
                                  "jsonl": lambda r, f, o, **kw: write_jsonl(r, f, o, catalog=src.catalog, **kw)}[args.format]
     if args.output:
-        with atomic_output(args.output) as tmp, tmp.open("w", encoding="utf-8", newline="") as out:
-            write(rows, fmt, out)
+        try:
+            with atomic_output(args.output) as tmp, tmp.open("w", encoding="utf-8", newline="") as out:
+                write(rows, fmt, out)
+        except OSError as exc:
+            raise TraceError(f"{args.output}: cannot write ({exc})") from None
     else:
         write(rows, fmt, sys.stdout, flush=src.streaming)
     _warn(src.warnings(decoder.receiver))

@@ -144,6 +144,7 @@ class TraceDecoder:
         receive = self.receiver.receive
         stats = self.receiver.stats
         decode = self.codec.decode
+        new = tuple.__new__  # a Row without its Python-level __new__ (the hot path)
         for frame in frames:
             if self.origin is None:
                 self.origin = frame.timestamp
@@ -155,7 +156,7 @@ class TraceDecoder:
             if end is not None and t > end:
                 continue
             if type(result) is Decoded:
-                yield Row(frame, t, result.message, result.values, result.counter, OK, "", stats.lost - lost)
+                yield new(Row, (frame, t, result.message, result.values, result.counter, OK, "", stats.lost - lost))
                 continue
             values = counter = None
             if result.reason in _COUNTER_REASONS:  # good CRC: the values are still worth showing
@@ -243,8 +244,8 @@ class Formatter:
             values = list(values)
             for i, labels in names:
                 values[i] = labels[values[i]]
-        return template.format(row.time_s, row.frame.timestamp, row.counter, row.lost_before,
-                               row.frame.data.hex().upper(), *values)
+        frame = row.frame
+        return template.format(row.time_s, frame.timestamp, row.counter, row.lost_before, frame.data.hex().upper(), *values)
 
     def signals(self, row: Row) -> list[tuple[SignalSpec, Any]]:
         """(signal, value) of the shown signals; labels for enumerations, values on their grid."""

@@ -144,6 +144,7 @@ def _candump_frames(lines: Iterable[str], name: str, report: ReadReport) -> Iter
     # The common line "(1.000000) can0 181#0102030405060708" is parsed inline (the decode hot path);
     # every other shape goes through parse_candump_line.
     fromhex = bytes.fromhex
+    new = tuple.__new__  # a Frame without its Python-level __new__
     for number, line in enumerate(lines, 1):
         parts = line.split()
         if len(parts) == 3 or (len(parts) == 4 and parts[3] == "R"):
@@ -152,7 +153,8 @@ def _candump_frames(lines: Iterable[str], name: str, report: ReadReport) -> Iter
                 stamp = parts[0]
                 if stamp[:1] == "(" and stamp[-1:] == ")":
                     try:
-                        yield Frame(float(stamp[1:-1]), int(ident, 16), fromhex(rest), parts[1])
+                        yield new(Frame, (float(stamp[1:-1]), int(ident, 16), fromhex(rest), parts[1],
+                                          False, False, False, False, True))
                         continue
                     except ValueError:
                         pass  # reported below, with its reason

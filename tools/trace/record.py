@@ -131,7 +131,10 @@ def record_bus(
             return "duration"
         if idle_timeout_s is not None and now - last_frame >= idle_timeout_s * 1e9:
             return "idle"
-        msg = bus.recv(timeout=poll_s)
+        try:
+            msg = bus.recv(timeout=poll_s)
+        except can.CanError as exc:  # the interface went down: what was recorded is kept
+            return f"bus error: {exc}"
         if msg is None:
             continue
         writer.write(msg)
