@@ -142,3 +142,41 @@ def test_standard_input_is_candump_log_format():
     stdin = io.StringIO("(1.0) can0 080#00\nnoise\n(1.1) can0 080#01\n")
     assert [f.data for f in read_frames(["-"], report, stdin)] == [b"\x00", b"\x01"]
     assert report.skipped == 1 and "<stdin>:2" in report.examples[0]
+
+
+VALID = {}
+
+
+def _valid(suffix, tmp_path):
+    if suffix not in VALID:
+        path = tmp_path / f"valid{suffix}"
+        _write(FRAMES, path)
+        VALID[suffix] = path.read_bytes()
+    return VALID[suffix]
+
+
+@pytest.mark.parametrize("suffix", [".log", ".asc", ".blf", ".trc", ".csv"])
+def test_random_bytes_and_cut_or_damaged_files_never_raise_past_a_one_line_error(tmp_path, suffix):
+    """Any content under any suffix: frames, counted skips, reported problems or one TraceError."""
+    import numpy as np
+
+    rng = np.random.default_rng(11)
+    valid = _valid(suffix, tmp_path)
+    samples = [rng.bytes(int(rng.integers(0, 400))) for _ in range(15)]
+    samples += [valid[: int(rng.integers(0, len(valid)))] for _ in range(15)]
+    for _ in range(15):
+        damaged = bytearray(valid)
+        for i in rng.integers(0, len(damaged), 8):
+            damaged[i] = int(rng.integers(0, 256))
+        samples.append(bytes(damaged))
+    for k, data in enumerate(samples):
+        path = tmp_path / f"sample{k}{suffix}"
+        path.write_bytes(data)
+        report = ReadReport()
+        try:
+            frames = list(read_frames([path], report))
+        except TraceError as exc:
+            assert "\n" not in str(exc)
+            continue
+        assert report.frames == len(frames)
+        assert all(isinstance(f.data, bytes) and isinstance(f.timestamp, float) for f in frames)
