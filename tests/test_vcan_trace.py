@@ -16,19 +16,17 @@ from __future__ import annotations
 
 import json
 import math
-import re
 import signal
 import subprocess
-import sys
 from contextlib import contextmanager
 
 import can
 import numpy as np
 import pytest
 
-from protocol.catalog import DBC_PATH
 from protocol.clock import MonotonicClock
 from protocol.codec import Codec
+from tests.test_trace_walk import assert_cantools_agrees
 from tools.buscheck import expected_record
 from tools.cli import main
 from tools.trace.decode import TraceDecoder
@@ -150,21 +148,4 @@ def test_record_canplayer_candump_replay_and_cantools_agree_over_vcan0(vcan0, tm
 
     # 5. cantools' command line with our DBC agrees with our decode on every signal.
     lines = [line for line in dump.read_text().splitlines() if f" {PROBE_ID:03X}#" not in line]
-    theirs = subprocess.run([sys.executable, "-m", "cantools", "decode", "--single-line", str(DBC_PATH)],
-                            input="\n".join(lines) + "\n", capture_output=True, text=True, timeout=300,
-                            check=True).stdout.splitlines()
-    assert len(theirs) == len(rows)
-    compared = 0
-    for row, line in zip(rows, theirs):
-        match = re.search(r" :: (\w+)\((.*)\)$", line)
-        assert match and match.group(1) == row.spec.name, line
-        values = dict(item.split(": ", 1) for item in match.group(2).split(", "))
-        assert int(values["e2e_counter"]) == row.counter
-        for sig, value in zip(row.spec.signals, row.values):
-            text = values[sig.name].split(" ")[0]
-            if sig.choices:
-                assert text == sig.choices[value], (row.spec.name, sig.name)
-            else:
-                assert math.isclose(float(text), value, abs_tol=1e-9), (row.spec.name, sig.name, text, value)
-            compared += 1
-    assert compared > 10 * TICKS
+    assert assert_cantools_agrees(rows, "\n".join(lines) + "\n") > 10 * TICKS
