@@ -34,6 +34,7 @@ class SwingConfig:
 
     duration_s: float = field_spec(doc="Swing duration tau.", unit="s", min=0.3, max=5.0)
     clearance_m: float = field_spec(doc="Peak ankle lift of the demonstration.", unit="m", min=0.02, max=0.3)
+    demonstration_step_m: float = field_spec(doc="Step length of the demonstration the DMP is fitted to (goals shorter than it make the foot dip backward first: the Pastor form does not scale the shape).", unit="m", min=0.02, max=0.6)
     n_basis: int = field_spec(doc="Gaussian basis functions per dimension.", min=3, max=200)
     stiffness: float = field_spec(doc="DMP spring K (damping is critical, 2 sqrt(K)).", min=1.0, max=10000.0)
     alpha_s: float = field_spec(doc="Phase decay (ln 100: phase 0.01 at t = tau).", min=0.1, max=50.0)
@@ -45,7 +46,7 @@ class SwingConfig:
 class StepConfig:
     """Step length: the uncompensated goal and the hard safety clamp."""
 
-    init_m: float = field_spec(doc="g_init: step length without compensation (the DMP is fitted here).", unit="m", min=0.02, max=0.6)
+    init_m: float = field_spec(doc="g_init: step length without compensation.", unit="m", min=0.02, max=0.6)
     min_m: float = field_spec(doc="Shortest step ever commanded.", unit="m", min=0.02, max=0.6)
     max_m: float = field_spec(doc="Longest step ever commanded.", unit="m", min=0.02, max=0.6)
 
@@ -151,6 +152,48 @@ class EnvelopeConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class GaitConfig:
+    """The legs through the gait cycle (controller/gait.py, docs/CONTROLLER.md): the weight shift
+    and lean of double support, the stick moves that gate them, and the end of the swing."""
+
+    shift_margin_m: float = field_spec(doc="Weight shift: the CoM at least this far inside the ankles' span.", unit="m", min=0.0, max=0.2)
+    shift_time_s: float = field_spec(doc="Weight shift: time constant of the CoM's approach.", unit="s", min=0.02, max=5.0)
+    shift_speed_m_s: float = field_spec(doc="Weight shift: top speed of the hips.", unit="m/s", min=0.005, max=0.5)
+    lean_speed_m_s: float = field_spec(doc="Lean: speed of the hips toward the patient's lean goal.", unit="m/s", min=0.005, max=0.5)
+    lean_behind_tips_m: float = field_spec(doc="The patient's lean goal: the CoM this far behind the mean stick tip.", unit="m", min=0.0, max=0.8)
+    comfort_stick_n: float = field_spec(doc="The lean pauses while a stick carries this.", unit="N", min=10.0, max=1000.0)
+    swing_stick_n: float = field_spec(doc="A step is ready with both sticks carrying this.", unit="N", min=1.0, max=500.0)
+    tips_ahead_m: float = field_spec(doc="... both tips this far ahead of the front ankle ...", unit="m", min=0.0, max=0.6)
+    lean_stall_m: float = field_spec(doc="... and the lean over: the CoM at its goal less this, or no farther forward by this ...", unit="m", min=0.001, max=0.1)
+    lean_stall_s: float = field_spec(doc="... in this long.", unit="s", min=0.1, max=10.0)
+    stick_lifted_n: float = field_spec(doc="A stick whose filtered force stays below this ...", unit="N", min=0.0, max=100.0)
+    stick_lift_s: float = field_spec(doc="... this long has been lifted.", unit="s", min=0.02, max=2.0)
+    stick_placed_n: float = field_spec(doc="A lifted stick carrying this again is planted ...", unit="N", min=1.0, max=500.0)
+    stick_moved_m: float = field_spec(doc="... and has moved when its tip is this much farther forward than at the last landing.", unit="m", min=0.0, max=0.5)
+    stick_filter_s: float = field_spec(doc="Time constant of the stick-force filter of the stick-move detection.", unit="s", min=0.0, max=1.0)
+    max_lead_m: float = field_spec(doc="A stance ankle's command leads its measured place by at most this fore-aft.", unit="m", min=0.001, max=0.1)
+    max_target_step_rad: float = field_spec(doc="No joint target moves more than this per tick (below the envelope's bound).", unit="rad", min=0.001, max=0.5)
+    reach_margin_m: float = field_spec(doc="Stance legs stay this much short of full reach (the hips lower).", unit="m", min=0.0, max=0.1)
+    height_speed_m_s: float = field_spec(doc="Speed at which the hips lower or rise.", unit="m/s", min=0.005, max=0.5)
+    foot_contact_n: float = field_spec(doc="A foot carrying this is on the floor (a swing foot: has landed).", unit="N", min=1.0, max=800.0)
+    landing_fraction: float = field_spec(doc="A landing counts after this fraction of the swing's duration.", min=0.1, max=1.0)
+    landing_depth_m: float = field_spec(doc="The swing's goal lies this far below the stance ankle.", unit="m", min=0.0, max=0.05)
+    swing_timeout_s: float = field_spec(doc="A swing with no landing ends this long after its duration.", unit="s", min=0.0, max=5.0)
+
+    def validate(self) -> None:
+        if self.stick_placed_n <= self.stick_lifted_n:
+            fail("stick_placed_n", f"must be above stick_lifted_n {self.stick_lifted_n}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class CompensationConfig:
+    """theta = (alpha, Xhat_CoM) of the step-length compensation when no learned patient file is loaded."""
+
+    alpha: float = field_spec(doc="alpha: step length per unit of X_CoM/X_SP.", unit="m", min=-100.0, max=100.0)
+    xhat_com: float = field_spec(doc="Xhat_CoM: the CoM ratio at which the step is g_init.", min=-1.0, max=2.0)
+
+
+@dataclass(frozen=True, kw_only=True)
 class ControllerConfig:
     legs: LegConfig = field_spec(doc="Exoskeleton leg geometry and joint limits.")
     swing: SwingConfig = field_spec(doc="The DMP swing generator.")
@@ -158,3 +201,6 @@ class ControllerConfig:
     learning: LearningConfig = field_spec(doc="Online learning of the step-length compensation.")
     envelope: EnvelopeConfig = field_spec(doc="The safety envelope of every joint command.")
     body: BodyConfig = field_spec(doc="The patient-plus-exoskeleton model of the state estimator.")
+    gait: GaitConfig = field_spec(doc="The legs through the gait cycle.")
+    compensation: CompensationConfig = field_spec(doc="The step-length compensation's theta without a patient file.")
+    patients_dir: str = field_spec(doc="Directory of the learned parameters per patient (relative: to the config file).")

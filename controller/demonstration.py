@@ -1,20 +1,25 @@
-"""The demonstration the DMP imitates: a healthy-looking swing of the ankle in the sagittal plane.
+"""The demonstration the DMP imitates: the swing of an exoskeleton's ankle in the sagittal plane.
 
-Provenance. We ship no recorded data. The demonstration is an analytic profile, shaped after the
-swing-phase ankle trajectory of healthy gait as described in the gait literature (e.g. D. A.
-Winter, *Biomechanics and Motor Control of Human Movement*, Wiley: the ankle moves forward with a
-smooth bell-shaped velocity and rises to its highest point in early-to-mid swing, then comes down
-to heel strike). It is *not* digitised from Winter's or anyone's data. Simplifications: the foot
-starts and ends at rest on the ground (a discrete movement, as the exoskeleton swing is), and the
-lift is a single smooth bump.
+Provenance. We ship no recorded data. The demonstration is an analytic profile: the
+lift-advance-descend ankle path that position-controlled exoskeleton swings use (and the scripted
+gait of ``sim.walk``), with minimum-jerk blends so that it starts and ends at rest. A healthy
+ankle's height peaks in early swing and comes down while the foot still advances; the
+exoskeleton's ankle is a passive spring, so its foot hangs toe-down while the knee is flexed, and
+a foot that advances low catches its toe (measured with a bump-shaped lift peaking at 43 % of
+the swing: touch-down at 60 % of the swing, the step 26 % short). So the foot first rises, then
+advances at full height, then comes down onto the floor at its goal.
 
-Profiles, with u = t / T in [0, 1]:
+Profiles, with u = t / T in [0, 1] and S(a) = 10 a^3 - 15 a^4 + 6 a^5 (minimum jerk, clamped to
+0 below a = 0 and to 1 above a = 1):
 
-- forward, x(t) = L * (10 u^3 - 15 u^4 + 6 u^5)   (minimum jerk: zero velocity and acceleration at
-  both ends, velocity peak at mid-swing);
-- up, z(t) = ankle_height + H * u^3 (1 - u)^4 / (u_p^3 (1 - u_p)^4) with u_p = 3/7   (a polynomial
-  bump: zero velocity and acceleration at both ends, peak H at 43 % of the swing, a slower descent
-  than rise). z starts and ends at the same height, which the Pastor DMP form handles.
+- up, z(t) = ankle_height + H * (S(u / r) - S((u - (1 - r)) / r)) with r = ``LIFT_RAMP``: up to H
+  over the first 30 % of the swing, level, down over the last 30 %;
+- forward, x(t) = L * S((u - a0) / (a1 - a0)) with (a0, a1) = ``ADVANCE``: from 10 % to 85 % of
+  the swing, so the foot advances only once it is clear of the floor and is over its goal before
+  the last 15 % of the descent.
+
+Both start and end with zero velocity and acceleration; z starts and ends at the same height,
+which the Pastor DMP form handles.
 
 Pure functions; no I/O.
 """
@@ -28,10 +33,8 @@ import numpy as np
 
 from controller.dmp import DmpError
 
-# Exponents of the lift bump u^a (1 - u)^b: its peak is at u = a / (a + b).
-LIFT_RISE_EXPONENT = 3
-LIFT_FALL_EXPONENT = 4
-LIFT_PEAK_FRACTION = LIFT_RISE_EXPONENT / (LIFT_RISE_EXPONENT + LIFT_FALL_EXPONENT)
+LIFT_RAMP = 0.3  # fraction of the swing over which the foot rises (and, at the end, comes down)
+ADVANCE = (0.10, 0.85)  # fraction of the swing over which the foot moves forward
 
 
 class DemonstrationError(DmpError):
@@ -54,19 +57,37 @@ def minimum_jerk(u) -> np.ndarray:
 
 
 def lift_profile(u) -> np.ndarray:
-    """Foot-lift bump ``u^3 (1 - u)^4``, normalised to peak 1 at u = 3/7; 0 at u = 0 and 1.
+    """Foot lift from 0 to 1 and back: up over the first ``LIFT_RAMP`` of the swing, level, down
+    over the last ``LIFT_RAMP`` (minimum-jerk blends).
 
     Parameters
     ----------
     u : array_like, shape (m,)
+        Fraction of the swing, in [0, 1].
 
     Returns
     -------
     ndarray, shape (m,)
     """
     u = np.asarray(u, dtype=np.float64)
-    a, b, p = LIFT_RISE_EXPONENT, LIFT_FALL_EXPONENT, LIFT_PEAK_FRACTION
-    return u**a * (1.0 - u) ** b / (p**a * (1.0 - p) ** b)
+    return minimum_jerk(np.clip(u / LIFT_RAMP, 0.0, 1.0)) - minimum_jerk(np.clip((u - (1.0 - LIFT_RAMP)) / LIFT_RAMP, 0.0, 1.0))
+
+
+def advance_profile(u) -> np.ndarray:
+    """Forward progress from 0 to 1 between the fractions ``ADVANCE`` of the swing (minimum jerk).
+
+    Parameters
+    ----------
+    u : array_like, shape (m,)
+        Fraction of the swing, in [0, 1].
+
+    Returns
+    -------
+    ndarray, shape (m,)
+    """
+    u = np.asarray(u, dtype=np.float64)
+    a0, a1 = ADVANCE
+    return minimum_jerk(np.clip((u - a0) / (a1 - a0), 0.0, 1.0))
 
 
 def swing_demonstration(
@@ -77,7 +98,7 @@ def swing_demonstration(
     *,
     ankle_height_m: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Swing-ankle trajectory: forward ``step_m`` with a ``lift_m`` bump, sampled uniformly.
+    """Swing-ankle trajectory: forward ``step_m`` at a ``lift_m`` lift, sampled uniformly.
 
     Parameters
     ----------
@@ -108,7 +129,7 @@ def swing_demonstration(
     if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 3:
         raise DemonstrationError(f"samples must be an integer >= 3, got {samples!r}")
     u = np.linspace(0.0, 1.0, int(samples))
-    xz = np.column_stack([step_m * minimum_jerk(u), ankle_height_m + lift_m * lift_profile(u)])
+    xz = np.column_stack([step_m * advance_profile(u), ankle_height_m + lift_m * lift_profile(u)])
     return duration_s * u, xz
 
 

@@ -682,7 +682,7 @@ class Pi2Learner:
             index=self._n_updates + 1,
             theta_before=tuple(self._theta.tolist()),
             theta=tuple(new.tolist()),
-            mean_cost=float(R.mean()),
+            mean_cost=float((R / len(R)).sum()),  # not R.mean(): finite costs near the float limit overflow their sum
             costs=tuple(R.tolist()),
             weights=tuple(weights.tolist()),
             noise=tuple(self.noise_std.tolist()),

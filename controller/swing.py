@@ -1,7 +1,7 @@
 """The swing generator from the configuration: demonstration, fitted DMP weights and their cache.
 
-The DMP is fitted once to the demonstration at the uncompensated step length ``step.init_m``
-(goals near it keep the demonstrated shape) and the weights are kept in
+The DMP is fitted once to the demonstration at ``swing.demonstration_step_m`` (near the shortest
+steps: longer goals keep the demonstrated shape, shorter ones make the foot dip backward first) and the weights are kept in
 ``config/swing_weights.json`` with the hash of the demonstration and the DMP settings they came
 from. Loading checks both, so a changed configuration can never run with stale weights;
 ``aider-exo dmp fit`` refits and rewrites the file.
@@ -35,7 +35,7 @@ def dmp_params(cfg: ControllerConfig) -> DmpParams:
 
 def demonstration(cfg: ControllerConfig) -> tuple[np.ndarray, np.ndarray]:
     """The demonstration the weights are fitted to: (times (m,), ankle x and z from the start (m, 2))."""
-    return swing_demonstration(step_m=cfg.step.init_m, lift_m=cfg.swing.clearance_m, duration_s=cfg.swing.duration_s)
+    return swing_demonstration(step_m=cfg.swing.demonstration_step_m, lift_m=cfg.swing.clearance_m, duration_s=cfg.swing.duration_s)
 
 
 def _identity(cfg: ControllerConfig) -> dict[str, Any]:

@@ -36,7 +36,7 @@ from sim.balance import Contact, WrenchGains, desired_wrench, distribute
 from sim.kinematics import Kinematics
 from sim.model import JOINT_ORDER, arm_ik, leg_ik
 from sim.sensors import Sensors, rpy_from_matrix
-from sim.truth import convex_hull_2d, pivot_polygon, stability_margin
+from sim.truth import convex_hull_2d, fore_aft_ratio, pivot_polygon, stability_margin
 from sim.world import GRAVITY, StancePose, World
 
 SIDES = ("l", "r")
@@ -150,6 +150,7 @@ class Walker:
         self.next_swing = "r"
         self.stance_feet = {"l": True, "r": True}
         self.lean_goal_x = 0.0
+        self.following = False  # the arms go along with the legs fore-aft (patient-only mode)
         self.steps: list[StepRecord] = []
         self._next_step = StepRecord(index=-1, leg="", start_s=0.0)  # the step in the making, until its swing starts
         self.margin = math.inf
@@ -203,6 +204,11 @@ class Walker:
         s, dt = self.s, self.dt_control
         self.phase_t += dt
         com = self.kin.com
+        # With the exoskeleton under its own controller the patient stands along with its legs
+        # until it starts walking.
+        self.following = not self.scripted_exo and self.phase is Phase.SETTLE
+        if self.following:
+            self.com_target = com[:2].copy()
         if self.phase is Phase.SETTLE:
             if self.phase_t >= s.settle_s and self.walking:
                 self._start_stick_moves()
@@ -247,17 +253,23 @@ class Walker:
                     self._set_phase(Phase.SHIFT)
                 else:
                     tips_x = float(np.mean([self.tip_point(side)[0] for side in SIDES]))
-                    # The patient leans onto the sticks and past the stance foot: a swing that
-                    # starts with the CoM over (or behind) the stance heel tips the body backward,
-                    # as sticks can push but not pull.
-                    stance_x = self.ankle_xy(OTHER[self.next_swing])[0]
-                    self.lean_goal_x = max(tips_x - s.lean_behind_sticks_m, stance_x + s.lean_past_stance_m)
+                    self.lean_goal_x = tips_x - s.lean_behind_sticks_m
+                    if self.scripted_exo:
+                        # The scripted gait's patient also leans past the stance foot: a swing that
+                        # starts with the CoM over (or behind) the stance heel tips the body
+                        # backward, as sticks can push but not pull.
+                        stance_x = self.ankle_xy(OTHER[self.next_swing])[0]
+                        self.lean_goal_x = max(self.lean_goal_x, stance_x + s.lean_past_stance_m)
                     self._set_phase(Phase.LEAN)
             return
         if self.phase in (Phase.LEAN, Phase.SWING):
             sticks = reading.stick_force_n
             step = s.lean_speed_m_s * dt
             comfortable = max(sticks) < s.stick_force_comfort_n
+            if not self.scripted_exo and comfortable:
+                # The legs may carry the body toward the goal faster than the patient would: it
+                # goes along, up to its goal (past it, it holds the body back).
+                self.com_target[0] = max(self.com_target[0], min(float(com[0]), self.lean_goal_x))
             if self.com_target[0] < self.lean_goal_x and comfortable:
                 self.com_target[0] = min(self.com_target[0] + step, self.lean_goal_x)
             self.com_target[1] += np.clip(0.0 - self.com_target[1], -step, step)
@@ -292,6 +304,7 @@ class Walker:
     def _start_swing(self, leg: str) -> None:
         self.swing_leg = leg
         self.stance_feet[leg] = False
+        self.stance_feet[OTHER[leg]] = True  # whatever its load said before: it carries the body now
         self.swing_start = self.ankle_xy(leg)
         self.swing_goal = np.array([self.ankle_xy(OTHER[leg])[0] + self.s.step_length_m, self.swing_start[1]])
         self.steps.append(dataclasses.replace(self._next_step, index=len(self.steps), leg=leg))
@@ -313,13 +326,19 @@ class Walker:
 
     def _sense_steps(self, reading) -> None:
         """The patient's view of a step the exoskeleton makes: a foot that stays unloaded for
-        ``foot_lift_s`` has left the floor (a swing), and the swing ends when it carries load again."""
+        ``foot_lift_s`` and is raised ``foot_raise_m`` off the floor has left it (a swing: the
+        patient feels the leg lifted, not merely unloaded as a rear foot is when the CoM passes
+        over the front one), and the swing ends when it carries load again."""
         s = self.s
         plantar = reading.heel_force_n + reading.toe_force_n
         for i, side in enumerate(SIDES):
             self.unloaded_s[side] = self.unloaded_s[side] + self.dt_control if plantar[i] < s.foot_contact_n else 0.0
         if self.swing_leg is None:
-            lifted = [side for side in SIDES if self.unloaded_s[side] >= s.foot_lift_s]
+            lifted = [
+                side for side in SIDES
+                if self.unloaded_s[side] >= s.foot_lift_s
+                and self.kin.joint_origin[self.ankle_idx[side]][2] - self.body.ankle_height_m > s.foot_raise_m
+            ]
             if len(lifted) == 1 and self.phase is Phase.LEAN:
                 self.next_swing = lifted[0]
                 self._start_swing(lifted[0])
@@ -364,13 +383,16 @@ class Walker:
         )
         z_goal = min(self.hip_height_nominal, self.body.ankle_height_m + reach)
         self.hip_goal[1] += np.clip(z_goal - self.hip_goal[1], -0.1 * dt, 0.1 * dt)
-        hip_target = self.hip_goal[1]
+        hip_target = self.hip_goal[1] if self.scripted_exo else trunk_origin[2]  # the legs hold the height
+        com_velocity = kin.com_velocity.copy()
+        if self.following:
+            com_velocity[0] = 0.0  # going along with the legs, not braking them
         self.pitch_goal += float(np.clip(s.trunk_pitch_rad - self.pitch_goal, -0.2 * dt, 0.2 * dt))
         # Stance feet rest on the floor: the body above the ankles is what the contacts must carry.
         foot_links = {f: w.link_index[f"foot_{f}"] for f in feet}
         carried = w.total_mass - sum(w.masses[i + 1] for i in foot_links.values())
         wrench = desired_wrench(
-            carried, com, kin.com_velocity, self.com_target, trunk_origin[2], hip_target, base_v[2],
+            carried, com, com_velocity, self.com_target, trunk_origin[2], hip_target, base_v[2],
             rpy, trunk_rot.T @ omega, np.array([0.0, s.trunk_pitch_rad]), self.gains,
         )
         # In 3-D the legs (hip and knee pitch only) cannot push sideways: the sticks carry the
@@ -495,6 +517,24 @@ class Walker:
             return float(min(com[0] - xs.min(), xs.max() - com[0]))
         poly = pivot_polygon(ankles, tip_xy, ankle_halfwidth=self.cfg.model.foot.half_width_m)
         return float(stability_margin(poly, com))
+
+    def x_ratio_truth(self, foot_n: float, stick_n: float, min_support_m: float) -> float:
+        """Ground truth of X_CoM/X_SP: the CoM's fore-aft place, along the trunk's heading, in the
+        pivot polygon of the feet carrying more than ``foot_n`` and the sticks carrying more than
+        ``stick_n``; nan for a polygon shorter than ``min_support_m`` fore-aft (the rules of the
+        controller's estimator, which computes it from the sensors)."""
+        w = self.world
+        feet = [s for s in SIDES if w.contact_normal_force(f"foot_{s}") > foot_n]
+        tips = [s for s in SIDES if w.contact_normal_force(f"forearm_{s}") > stick_n]
+        ankles = np.array([self.ankle_xy(s) for s in feet]).reshape(-1, 2)
+        tip_xy = np.array([self.tip_point(s)[:2] for s in tips]).reshape(-1, 2)
+        poly = pivot_polygon(ankles, tip_xy, ankle_halfwidth=self.cfg.model.foot.half_width_m)
+        heading = w.link_frame("trunk")[1][:2, 0]
+        heading = heading / np.linalg.norm(heading)
+        extent = poly @ heading if len(poly) else np.zeros(1)
+        if float(extent.max() - extent.min()) < min_support_m:
+            return math.nan
+        return fore_aft_ratio(poly, self.kin.com[:2], heading=heading)
 
     def start(self):
         """Latch the initial posture as the targets; returns the first sensor reading."""

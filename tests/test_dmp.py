@@ -14,7 +14,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from controller.demonstration import (
-    LIFT_PEAK_FRACTION,
+    ADVANCE,
+    LIFT_RAMP,
+    advance_profile,
     DemonstrationError,
     demonstration_hash,
     lift_profile,
@@ -53,12 +55,17 @@ def test_demonstration_shape_and_profile():
     assert times[0] == 0.0 and times[-1] == pytest.approx(1.2)
     assert xz[0] == pytest.approx([0.0, 0.08]) and xz[-1] == pytest.approx([0.3, 0.08])  # z: start == goal
     assert np.all(np.diff(xz[:, 0]) >= 0.0)  # the ankle only moves forward
-    peak = np.argmax(xz[:, 1])
-    assert xz[peak, 1] == pytest.approx(0.18, abs=1e-6)
-    assert times[peak] / 1.2 == pytest.approx(LIFT_PEAK_FRACTION, abs=0.01)
-    assert 0.3 < LIFT_PEAK_FRACTION < 0.5  # early-mid swing
+    u = times / 1.2
+    top = (u >= LIFT_RAMP) & (u <= 1.0 - LIFT_RAMP)
+    assert xz[top, 1] == pytest.approx(0.18, abs=1e-9)  # level at full lift in mid-swing
+    assert xz[:, 1].max() == pytest.approx(0.18, abs=1e-9)
+    assert np.all(xz[u <= ADVANCE[0], 0] == 0.0) and np.all(xz[u >= ADVANCE[1], 0] == pytest.approx(0.3))
+    # the foot advances only once lifted, and is over its goal before it comes down to the floor
+    lift = xz[:, 1] - 0.08
+    assert np.all(lift[(xz[:, 0] > 0.0) & (u < 0.5)] > 0.2 * 0.1)  # lifted 20 % before it moves forward
+    assert np.all(lift[(xz[:, 0] > 0.1 * 0.3) & (xz[:, 0] < 0.99 * 0.3)] >= 0.5 * 0.1)  # then at least half up
     velocity = np.gradient(xz, times, axis=0, edge_order=2)
-    assert np.abs(velocity[[0, -1]]).max() < 1e-3  # at rest at both ends
+    assert np.abs(velocity[[0, -1]]).max() < 2e-3  # at rest at both ends (one-sided differences over 5 ms; peak speed ~1 m/s)
 
 
 def test_demonstration_hash_is_a_stable_identifier():
@@ -133,7 +140,7 @@ def test_converges_to_the_goal():
     dmp = Dmp(swing_weights())
     positions = run(dmp, 1.5 * TAU_S)
     assert np.abs(positions[-1] - [STEP_M, 0.0]).max() < 1e-3
-    assert np.abs(dmp.velocity).max() < 5e-3  # m/s
+    assert np.abs(dmp.velocity).max() < 1e-2  # m/s: all but at rest (the descent ends steeply)
     run(dmp, 1.5 * TAU_S)
     assert np.abs(dmp.x - [STEP_M, 0.0]).max() < 1e-5 and np.abs(dmp.velocity).max() < 1e-4
 
@@ -210,15 +217,26 @@ def test_goal_change_mid_swing_moves_the_landing_point_smoothly(new_step_m):
     assert np.all(np.isfinite(positions))
 
 
-@pytest.mark.parametrize("step_m", [0.10, 0.125, 0.175, 0.20])
-def test_goals_near_the_demonstrated_step_keep_its_shape(step_m):
-    # The Pastor form does not scale the shape: far shorter goals than the demonstrated one make the
-    # ankle dip backwards and overshoot (movement_primitives #70). Within +-0.05 m of it, barely.
+@pytest.mark.parametrize("step_m", [0.15, 0.175, 0.20, 0.25])
+def test_goals_at_or_beyond_the_demonstrated_step_keep_its_shape(step_m):
+    # The Pastor form does not scale the shape: a longer goal than the demonstrated one comes out
+    # as the same lift with a longer advance (which is why the swing is demonstrated near the
+    # shortest steps, config swing.demonstration_step_m).
     dmp = Dmp(swing_weights())
     dmp.reset(goal=[step_m, 0.0])
     x = run(dmp, 1.5 * TAU_S)[:, 0]
-    assert x.max() - step_m < 2e-3  # overshoot
-    assert -np.diff(x).min() < 1e-3  # backward motion per tick
+    assert x.max() - step_m < 1e-3  # overshoot
+    assert -np.diff(x).min() < 1e-4  # no backward motion
+
+
+@pytest.mark.parametrize("step_m", [0.10, 0.125])
+def test_shorter_goals_dip_backward_first_by_a_fraction_of_the_difference(step_m):
+    # ... and far shorter goals make the ankle dip backwards and overshoot (movement_primitives #70).
+    dmp = Dmp(swing_weights())
+    dmp.reset(goal=[step_m, 0.0])
+    x = run(dmp, 1.5 * TAU_S)[:, 0]
+    assert 0.0 < -x.min() < 0.3 * (STEP_M - step_m)
+    assert x.max() - step_m < 0.1 * (STEP_M - step_m)
 
 
 def test_reset_sets_the_goal_at_once():
@@ -236,7 +254,7 @@ def test_lift_with_start_equal_to_goal_is_learnt_and_stays_finite():
     times, xz = swing_demonstration(step_m=STEP_M, duration_s=TAU_S)
     weights = fit(times, xz[:, 1:])  # z only: 1-D, start == goal
     assert weights.x0 == weights.g
-    assert np.all(np.isfinite(weights.weights)) and np.abs(weights.weights).max() < 10.0
+    assert np.all(np.isfinite(weights.weights)) and np.abs(weights.weights).max() < 50.0  # the Ijspeert form: ~1e34
     dmp = Dmp(weights)
     positions = run(dmp, 1.5 * TAU_S)
     assert np.all(np.isfinite(positions))
@@ -364,5 +382,5 @@ def test_any_demonstrated_swing_is_reproduced_within_1_mm(step_m, lift_m, durati
     ticks_s, positions = dmp.rollout(DT_S, duration_s)
     inside = ticks_s <= duration_s
     u = ticks_s[inside] / duration_s
-    demo = np.column_stack([step_m * minimum_jerk(u), lift_m * lift_profile(u)])
+    demo = np.column_stack([step_m * advance_profile(u), lift_m * lift_profile(u)])
     assert np.abs(positions[inside] - demo).max() < 1e-3

@@ -27,7 +27,7 @@ def test_stale_or_broken_weights_are_refused_with_the_fix(tmp_path):
     with pytest.raises(SwingWeightsError, match="no fitted swing weights; run `aider-exo dmp fit`"):
         load_swing(CFG, path)
     save_swing(CFG, fit_swing(CFG), path)
-    other = dataclasses.replace(CFG, step=dataclasses.replace(CFG.step, init_m=0.12))
+    other = dataclasses.replace(CFG, swing=dataclasses.replace(CFG.swing, demonstration_step_m=0.12))
     with pytest.raises(SwingWeightsError, match="fitted for another demonstration sha256"):
         load_swing(other, path)
     path.write_text("{not json")

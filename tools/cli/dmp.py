@@ -36,7 +36,7 @@ def run_fit(args: argparse.Namespace) -> int:
     ticks, positions = dmp.rollout(0.02, float(times[-1]), substeps=cfg.controller.swing.substeps)
     reference = np.column_stack([np.interp(ticks, times, xz[:, k]) for k in range(xz.shape[1])])
     error_mm = float(np.max(np.linalg.norm(positions - reference, axis=1)) * 1000)
-    result = {"file": str(path), "basis_functions": weights.weights.shape[1], "step_m": cfg.controller.step.init_m,
+    result = {"file": str(path), "basis_functions": weights.weights.shape[1], "step_m": cfg.controller.swing.demonstration_step_m,
               "duration_s": weights.tau_s, "max_reproduction_error_mm": round(error_mm, 3)}
     if args.json:
         print_json(result)

@@ -1,0 +1,278 @@
+"""The exoskeleton's legs through the gait cycle, from the state estimate alone (pure numpy).
+
+The patient moves the sticks (where it places them is its intention) and balances with its arms;
+the exoskeleton carries the body where only its legs can and makes the steps. With passive
+ankles the legs can move the body fore-aft only while both feet are loaded (a closed chain over
+two ankle pins); on one loaded foot the body turns freely about that ankle and the patient's
+sticks hold it. One gait cycle, per leg (docs/CONTROLLER.md):
+
+1. **Double support, weight shift.** Until both sticks have moved, the legs carry the CoM to the
+   nearest point ``shift_margin`` inside the ankles' span (approaching it with time constant
+   ``shift_time``, at most ``shift_speed``), where the patient can lift the sticks; they hold still
+   while a stick is in the air. A stick has moved once it was off the floor (filtered force below
+   ``stick_lifted_n`` for ``stick_lift_s``) and was planted again (above ``stick_placed_n``) at
+   least ``stick_moved_m`` farther forward than it stood at the last landing.
+2. **Double support, lean.** With both sticks moved, the legs carry the CoM toward the patient's
+   lean goal, ``lean_behind_tips`` behind the mean stick tip (at ``lean_speed``), pausing while a
+   stick carries ``comfort_stick_n``. The step is ready when both sticks carry ``swing_stick_n``,
+   stand ``tips_ahead`` ahead of the front ankle, and the lean is over: the CoM at its goal, or no
+   farther forward by ``lean_stall_m`` for ``lean_stall_s`` (a trailing leg at full reach). No
+   check of where the CoM is against the stance foot: that is the step length's job (the CoM
+   compensation of the paper's equation (8)); a step too long for the patient's lean falls.
+3. **Swing.** The swing ankle follows the DMP in the stance foot's frame, from where it is to
+   the step length ahead of the stance ankle and ``landing_depth`` below it. The stance leg holds
+   the hips' height and the trunk's pitch and lets the body turn about its ankle as the patient's
+   sticks allow. The swing ends when the foot carries ``foot_contact_n`` after
+   ``landing_fraction`` of the DMP's duration (a landing), or ``swing_timeout`` after its end.
+
+Every leg target comes from the inverse kinematics of a commanded ankle position relative to the
+hip in the heading frame; the hips' joint targets add the trunk's pitch goal (a stance leg) or
+its measured pitch (the swing leg). A stance leg's commanded ankle leads its measured one by at
+most ``max_lead`` fore-aft (no wind-up when the body does not follow), a stance foot that carries
+nothing is not pushed along the floor, and no joint target moves more than ``max_target_step``
+per tick.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from config.controller_schema import GaitConfig
+from controller import kinematics as kin
+from controller.dmp import Dmp
+from controller.estimator import Estimate, Measurements
+
+LEFT, RIGHT = 0, 1
+LEGS = (LEFT, RIGHT)
+
+
+@dataclass(frozen=True)
+class DoubleSupport:
+    """What a double-support tick found: whether the swing may start, and the part of double
+    support the legs are in (``shift`` or ``lean``)."""
+
+    ready: bool
+    part: str
+    lean_goal_x: float  # m, heading frame (nan in the shift)
+
+
+@dataclass(frozen=True)
+class SwingTick:
+    done: bool
+    landed: bool  # the foot carries load (False: the swing timed out in the air)
+    ankle_xz_m: np.ndarray  # the commanded swing ankle in the stance foot's frame
+
+
+@dataclass
+class StickTracker:
+    """Which sticks the patient has moved since the last landing (see the module doc)."""
+
+    params: GaitConfig
+    dt_s: float
+    force_n: np.ndarray = field(default_factory=lambda: np.zeros(2))  # filtered
+    unloaded_s: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    lifted: list[bool] = field(default_factory=lambda: [False, False])
+    moved: list[bool] = field(default_factory=lambda: [False, False])
+    ref_x: np.ndarray = field(default_factory=lambda: np.full(2, math.nan))  # tip - reference ankle, at the landing
+    ref_leg: int = LEFT
+
+    def reset(self, est: Estimate, ref_leg: int) -> None:
+        """A new cycle: the sticks must move again; ``ref_leg``'s foot stays planted until the next
+        swing starts, so tip positions are measured from its ankle."""
+        self.ref_leg = ref_leg
+        self.ref_x = est.tips[:, 0] - est.ankles[ref_leg][0]
+        self.unloaded_s[:] = 0.0
+        self.lifted = [False, False]
+        self.moved = [False, False]
+
+    def update(self, est: Estimate, m: Measurements) -> None:
+        p = self.params
+        a = min(1.0, self.dt_s / p.stick_filter_s) if p.stick_filter_s > 0 else 1.0
+        self.force_n += a * (np.asarray(m.stick_force_n, dtype=float) - self.force_n)
+        advance = est.tips[:, 0] - est.ankles[self.ref_leg][0] - self.ref_x
+        for i in LEGS:
+            off = self.force_n[i] < p.stick_lifted_n
+            self.unloaded_s[i] = self.unloaded_s[i] + self.dt_s if off else 0.0
+            if self.unloaded_s[i] >= p.stick_lift_s:
+                self.lifted[i] = True
+            if self.lifted[i] and self.force_n[i] > p.stick_placed_n and advance[i] >= p.stick_moved_m:
+                self.moved[i] = True
+
+    @property
+    def any_lifted_now(self) -> bool:
+        return bool(np.any(self.unloaded_s > 0.0))
+
+
+class GaitPlanner:
+    """Joint targets of the four joints (left hip, left knee, right hip, right knee) per tick.
+
+    The planner keeps a commanded ankle position per leg, (x, z) from its hip in the heading
+    frame, and the hips' stance height above the ankles.
+    """
+
+    def __init__(self, leg: kin.Leg, dmp: Dmp, params: GaitConfig, *, dt_s: float, substeps: int) -> None:
+        self.leg, self.dmp, self.p = leg, dmp, params
+        self.dt_s, self.substeps = dt_s, substeps
+        self.sticks = StickTracker(params, dt_s)
+        self.ankle_cmd = np.zeros((2, 2))
+        self.stand_height_m = math.nan  # the hips above the ankles when walking started
+        self.depth_m = math.nan  # the stance ankles below the hips now (lowered for a long stagger)
+        self.hips_cmd_x = 0.0  # the hips' commanded place ahead of the mean stance ankle
+        self.feet_spacing = np.full(2, math.nan)  # right ankle less left ankle (x, z), both planted
+        self.pitch_goal_rad = 0.0
+        self.targets = np.zeros(4)
+        self.torque_ff = np.zeros(4)
+        self.swing_leg: int | None = None
+        self.swing_t = 0.0
+        self.step_length_m = math.nan
+        self._lean_best_x = -math.inf  # the farthest the CoM got in this lean, and how long since
+        self._lean_still_s = 0.0
+
+    # -- set-up ----------------------------------------------------------------------------------
+
+    def stand_here(self, est: Estimate, m: Measurements) -> None:
+        """Take the measured posture: the stance height, the trunk pitch and the ankles where they
+        are (at the start of walking, after a stop or a fault)."""
+        self.stand_height_m = self.depth_m = -float(np.mean(est.ankles[:, 2]))
+        self.pitch_goal_rad = float(m.trunk_rpy_rad[1])
+        self.ankle_cmd = np.array([[est.ankles[i][0], est.ankles[i][2]] for i in LEGS])
+        self.hips_cmd_x = -float(np.mean(est.ankles[:, 0]))
+        self.targets = np.array(m.joint_position_rad, dtype=float)
+        self.swing_leg = None
+        self._new_cycle(est, ref_leg=int(np.argmin(est.ankles[:, 0])))
+
+    def _new_cycle(self, est: Estimate, ref_leg: int) -> None:
+        self.sticks.reset(est, ref_leg)
+        self.feet_spacing = (est.ankles[RIGHT] - est.ankles[LEFT])[[0, 2]]
+        self._lean_best_x, self._lean_still_s = -math.inf, 0.0
+
+    def track_sticks(self, est: Estimate, m: Measurements) -> None:
+        """Every walking tick: the stick moves since the last landing."""
+        self.sticks.update(est, m)
+
+    # -- the legs --------------------------------------------------------------------------------
+
+    def _stance(self, legs: tuple[int, ...], est: Estimate, m: Measurements, dx: float) -> None:
+        """Carry the hips ``dx`` forward over the planted ankles of ``legs``, at the stance height
+        (lowered as far as the leg farthest from under the hips needs to reach its ankle).
+
+        The ankles' midpoint is commanded where it is measured, shifted by the hips' commanded
+        place relative to the feet less their measured place (at most ``max_lead`` fore-aft: a body
+        that does not follow cannot wind the command up), and the two ankles at the feet's spacing
+        on the floor, as measured while both carry load. The legs then agree on where the feet are
+        (two position-controlled legs on two planted feet are a closed chain: commands that
+        disagree push the feet apart or together and one of them off the floor), and a foot that
+        carries nothing is held where it stands instead of drifting with its own measurement.
+        """
+        p = self.p
+        reach = self.leg.reach_m - p.reach_margin_m
+        feet = est.ankles[list(legs)][:, [0, 2]]
+        mid = feet.mean(axis=0)
+        if len(legs) == 2:
+            load = m.heel_force_n + m.toe_force_n
+            if bool(np.all(load > p.foot_contact_n)):
+                self.feet_spacing = feet[1] - feet[0]
+            offsets = np.array([-0.5 * self.feet_spacing, 0.5 * self.feet_spacing])
+        else:
+            offsets = np.zeros((1, 2))
+        hips_x = -float(mid[0])  # the hips ahead of the feet
+        self.hips_cmd_x = float(np.clip(self.hips_cmd_x + dx, hips_x - p.max_lead_m, hips_x + p.max_lead_m))
+        mid_cmd_x = float(mid[0]) - (self.hips_cmd_x - hips_x)
+        x_far = float(np.max(np.abs(mid_cmd_x + offsets[:, 0])))
+        depth = min(self.stand_height_m, math.sqrt(max(reach * reach - x_far * x_far, 0.0)))
+        step = p.height_speed_m_s * self.dt_s
+        self.depth_m += float(np.clip(depth - self.depth_m, -step, step))
+        for i, offset in zip(legs, offsets):
+            self.ankle_cmd[i] = (mid_cmd_x + float(offset[0]), -self.depth_m + float(offset[1]))
+
+    def _solve(self, m: Measurements) -> None:
+        """Joint targets for the commanded ankles. A target beyond the leg's reach less
+        ``reach_margin`` is pulled in toward the hip (a straight knee makes the inverse kinematics
+        ill-conditioned); an ankle the joint ranges cannot reach keeps the leg's targets."""
+        reach = self.leg.reach_m - self.p.reach_margin_m
+        step = self.p.max_target_step_rad
+        for i in LEGS:
+            pitch = self.pitch_goal_rad
+            x, z = float(self.ankle_cmd[i][0]), float(self.ankle_cmd[i][1])
+            r = math.hypot(x, z)
+            if r > reach:
+                x, z = x * reach / r, z * reach / r
+            try:
+                hip_world, knee = kin.inverse(self.leg, x, z)
+            except kin.KinematicsError:
+                continue
+            h, k = 2 * i, 2 * i + 1
+            self.targets[h] += float(np.clip(hip_world + pitch - self.targets[h], -step, step))
+            self.targets[k] += float(np.clip(knee - self.targets[k], -step, step))
+
+    # -- double support ----------------------------------------------------------------------------
+
+    def double_support(self, est: Estimate, m: Measurements, swing_leg: int) -> DoubleSupport:
+        """One double-support tick before the swing of ``swing_leg``."""
+        p = self.p
+        com_x = float(est.com[0])
+        front = float(est.ankles[:, 0].max())
+        if not all(self.sticks.moved):
+            self._stance(LEGS, est, m, self._shift(est))
+            self._solve(m)
+            return DoubleSupport(False, "shift", math.nan)
+        goal = float(np.mean(est.tips[:, 0])) - p.lean_behind_tips_m
+        comfortable = float(np.max(m.stick_force_n)) < p.comfort_stick_n
+        dx = min(p.lean_speed_m_s * self.dt_s, max(goal - com_x, 0.0)) if comfortable else 0.0
+        self._stance(LEGS, est, m, dx)
+        self._solve(m)
+        progress = com_x - float(est.ankles[self.sticks.ref_leg][0])  # over a planted foot: the estimate's frame moves with the hips
+        if progress > self._lean_best_x + p.lean_stall_m:
+            self._lean_best_x, self._lean_still_s = progress, 0.0
+        else:
+            self._lean_still_s += self.dt_s
+        over = com_x >= goal - p.lean_stall_m or self._lean_still_s >= p.lean_stall_s
+        ahead = bool(np.all(est.tips[:, 0] > front + p.tips_ahead_m))
+        loaded = bool(np.all(self.sticks.force_n > p.swing_stick_n))
+        return DoubleSupport(over and ahead and loaded, "lean", goal)
+
+    def _shift(self, est: Estimate) -> float:
+        """How far to carry the hips forward this tick in the weight shift (0 with a stick in the air)."""
+        p = self.p
+        if self.sticks.any_lifted_now:
+            return 0.0
+        x = est.ankles[:, 0]
+        com_x = float(est.com[0])
+        lo, hi = float(x.min()) + p.shift_margin_m, float(x.max()) - p.shift_margin_m
+        goal = (lo + hi) / 2 if lo > hi else min(max(com_x, lo), hi)
+        step = p.shift_speed_m_s * self.dt_s
+        return float(np.clip((goal - com_x) * self.dt_s / p.shift_time_s, -step, step))
+
+    # -- swing -------------------------------------------------------------------------------------
+
+    def start_swing(self, leg: int, est: Estimate, length_m: float) -> None:
+        stance = 1 - leg
+        start = est.ankles[leg] - est.ankles[stance]
+        self.dmp.reset(x0=np.array([start[0], start[2]]), goal=np.array([length_m, -self.p.landing_depth_m]))
+        self.swing_leg, self.swing_t, self.step_length_m = leg, 0.0, length_m
+
+    def swing(self, est: Estimate, m: Measurements) -> SwingTick:
+        leg, p = self.swing_leg, self.p
+        stance = 1 - leg
+        self.hips_cmd_x = -float(est.ankles[stance][0])  # the body turns about the stance ankle freely
+        self._stance((stance,), est, m, 0.0)
+        xz = self.dmp.step(self.dt_s, self.substeps) if not self.dmp.done else self.dmp.x
+        self.swing_t += self.dt_s
+        anchor = est.ankles[stance]  # the stance foot, where it is
+        self.ankle_cmd[leg] = (float(anchor[0] + xz[0]), float(anchor[2] + xz[1]))
+        self._solve(m)
+        tau = self.dmp.tau_s
+        loaded = float(m.heel_force_n[leg] + m.toe_force_n[leg]) > p.foot_contact_n
+        landed = loaded and self.swing_t >= p.landing_fraction * tau
+        done = landed or self.swing_t >= tau + p.swing_timeout_s
+        if done:
+            # The landed leg becomes a stance leg: its commanded ankle is re-expressed with the trunk
+            # at its pitch goal so that its joint targets do not jump.
+            self.ankle_cmd[leg] = kin.forward(self.leg, self.targets[2 * leg] - self.pitch_goal_rad, self.targets[2 * leg + 1])
+            self.swing_leg = None
+            self.hips_cmd_x = -float(np.mean(est.ankles[:, 0]))
+            self._new_cycle(est, ref_leg=stance)
+        return SwingTick(done, landed, xz)

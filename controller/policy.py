@@ -1,0 +1,136 @@
+"""Where each step's length comes from, and what each step cost (pure; the learner's file I/O is
+the caller's).
+
+* **fixed**: every step the same length (the baseline without compensation);
+* **compensated**: the paper's equation (8) with a fixed theta = (alpha, Xhat_CoM), from the
+  configuration or a patient's learned file;
+* **learning**: the compensation with the theta that online PI² (:class:`controller.pi2.Pi2Learner`)
+  proposes for the current roll-out of ``N`` gait cycles; each cycle's cost is the mean stick force
+  over its two steps (paper equation (10)), a fall ends the roll-out with its terminal cost.
+
+A step runs from the previous landing (or the start of walking) to its own landing; its mean stick
+force is the mean over those ticks of the two sticks' mean force, as the simulation's ground truth
+defines a step's cost.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from controller.compensation import StepBounds, StepGoal, compensated_step
+from controller.pi2 import Pi2Learner, UpdateRecord
+
+
+@dataclass
+class StepRecord:
+    """One step as the controller saw it."""
+
+    index: int
+    leg: str  # "l" or "r"
+    start_tick: int  # the previous landing (or the start of walking)
+    swing_tick: int = -1
+    end_tick: int = -1
+    length_m: float = math.nan  # commanded (after the clamp)
+    requested_m: float = math.nan
+    clamped: bool = False
+    x_ratio: float = math.nan  # X_CoM / X_SP at the swing's start
+    theta: tuple[float, float] | None = None
+    landed: bool = False
+    force_sum_n: float = 0.0
+    samples: int = 0
+
+    def add(self, stick_force_n: np.ndarray) -> None:
+        self.force_sum_n += float(np.mean(stick_force_n))
+        self.samples += 1
+
+    @property
+    def mean_stick_force_n(self) -> float:
+        return self.force_sum_n / self.samples if self.samples else math.nan
+
+    def as_dict(self) -> dict:
+        return {
+            "index": self.index, "leg": self.leg, "start_tick": self.start_tick, "swing_tick": self.swing_tick,
+            "end_tick": self.end_tick, "length_m": _r(self.length_m), "requested_m": _r(self.requested_m),
+            "clamped": self.clamped, "x_ratio": _r(self.x_ratio),
+            "theta": None if self.theta is None else [round(v, 4) for v in self.theta],
+            "landed": self.landed, "mean_stick_force_n": _r(self.mean_stick_force_n, 2),
+        }
+
+
+def _r(x: float, digits: int = 4) -> float | None:
+    return round(x, digits) if math.isfinite(x) else None
+
+
+@dataclass
+class StepPolicy:
+    """The step length of every swing, and the bookkeeping of what the steps cost."""
+
+    bounds: StepBounds
+    fixed_m: float | None = None
+    theta: tuple[float, float] = (0.0, 0.0)  # (alpha, Xhat_CoM) when not learning
+    learner: Pi2Learner | None = None
+    on_update: Callable[[Pi2Learner, UpdateRecord | None], None] | None = None  # after every roll-out
+    cycle_costs: list[float] = field(default_factory=list)  # of the current roll-out
+    _pending: list[float] = field(default_factory=list)  # step costs of the unfinished gait cycle
+
+    def __post_init__(self) -> None:
+        if self.fixed_m is not None and not self.bounds.min_m <= self.fixed_m <= self.bounds.max_m:
+            raise ValueError(f"fixed step {self.fixed_m} m outside the safe range [{self.bounds.min_m}, {self.bounds.max_m}] m")
+        if self.fixed_m is not None and self.learner is not None:
+            raise ValueError("a fixed step length cannot be learned")
+
+    @property
+    def mode(self) -> str:
+        return "fixed" if self.fixed_m is not None else "learning" if self.learner is not None else "compensated"
+
+    def current_theta(self) -> tuple[float, float] | None:
+        if self.fixed_m is not None:
+            return None
+        if self.learner is not None:
+            alpha, xhat = self.learner.ask()
+            return float(alpha), float(xhat)
+        return self.theta
+
+    def goal(self, x_ratio: float) -> tuple[StepGoal, tuple[float, float] | None]:
+        """The step length for a swing that starts with the CoM at ``x_ratio`` of the support."""
+        if self.fixed_m is not None:
+            return StepGoal(self.fixed_m, self.fixed_m, False), None
+        theta = self.current_theta()
+        return compensated_step(self.bounds, theta[0], theta[1], x_ratio), theta
+
+    def landed(self, step: StepRecord) -> None:
+        """A step has landed: with learning, every second one closes a gait cycle."""
+        if self.learner is None:
+            return
+        self._pending.append(step.mean_stick_force_n)
+        if len(self._pending) < 2:
+            return
+        cost = float(np.mean(self._pending))
+        self._pending.clear()
+        self.learner.tell_step(cost)
+        self.cycle_costs.append(cost)
+        if len(self.cycle_costs) >= self.learner.params.steps_per_rollout:
+            self._end_rollout(fell=False)
+
+    def fell(self) -> None:
+        """The walk ended in a fall: the roll-out ends with its terminal cost."""
+        if self.learner is not None and self.learner.in_rollout:
+            self._end_rollout(fell=True)
+
+    def abandon(self) -> None:
+        """The walk stopped without a fall before the roll-out's end: it never enters an update."""
+        if self.learner is not None:
+            self.learner.abort_rollout()
+            self.cycle_costs.clear()
+            self._pending.clear()
+
+    def _end_rollout(self, fell: bool) -> None:
+        record = self.learner.end_rollout(fell)
+        self.cycle_costs.clear()
+        self._pending.clear()
+        if self.on_update is not None:
+            self.on_update(self.learner, record)
