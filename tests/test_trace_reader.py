@@ -49,6 +49,9 @@ def test_a_candump_log_with_garbage_and_a_truncated_last_line_is_read_with_count
     frames = list(read_frames([path], report))
     assert [(f.arbitration_id, f.data) for f in frames] == [(f.arbitration_id, f.data) for f in FRAMES]
     assert report.skipped == 2 and report.frames == len(FRAMES)
+    nine = ReadReport()
+    (tmp_path / "nine.log").write_text("(1.0) can0 181#" + "00" * 9 + "\n")
+    assert list(read_frames([tmp_path / "nine.log"], nine)) == [] and "9 data bytes" in nine.examples[0]
     assert report.examples[0].startswith(f"{path}:6:") and "not a candump log line" in report.examples[0]
     assert any("skipped 2 line(s)" in w for w in report.warnings())
 

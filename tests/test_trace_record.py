@@ -103,7 +103,8 @@ def test_recording_ends_on_idle_and_on_stop(tmp_path):
         writer = TraceWriter(tmp_path / "idle.log")
         assert record_bus(bus, writer, MonotonicClock(), idle_timeout_s=0.05, poll_s=0.01) == "idle"
         assert record_bus(bus, writer, MonotonicClock(), stop=lambda: True) == "stopped"
-        assert writer.close({})["parts"] == []  # nothing received: no file
+        assert writer.close({})["parts"] == []  # nothing received: no file, no sidecar
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_cli_refuses_a_virtual_bus_without_walk(tmp_path, capsys):

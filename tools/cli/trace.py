@@ -92,7 +92,13 @@ def _loops(text: str) -> int | None:
 
 
 def _non_negative(text: str) -> float:
-    return 0.0 if text.strip() in ("0", "0.0") else positive_float(text)
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text} is not a finite number of at least 0")
+    return value
 
 
 def _add_input(p: argparse.ArgumentParser, *, signals_required: bool = False, config: bool = True) -> None:
@@ -183,8 +189,10 @@ def run_record(args: argparse.Namespace) -> int:
     if args.json:
         print_json(meta)
     else:
-        parts = ", ".join(meta["parts"]) or "no file (no frame recorded)"
-        print(f"recorded {meta['frames']} frames to {parts} (+ {args.output.name}.meta.json)")
+        if meta["parts"]:
+            print(f"recorded {meta['frames']} frames to {', '.join(meta['parts'])} (+ {args.output.name}.meta.json)")
+        else:
+            print("no frame recorded: no file written")
     return 0
 
 
@@ -275,7 +283,7 @@ def run_replay(args: argparse.Namespace) -> int:
     frames = [row.frame for row in decoder.rows(src.frames(), src.selection)]
     options = ReplayOptions(speed=args.speed, loops=args.loop, max_gap_s=args.skip_gaps, catch_up=args.catch_up,
                             spin_s=args.spin_us / 1e6)
-    warnings = src.report.warnings()
+    warnings = src.warnings(decoder.receiver)
     if args.realtime:
         from controller.timing import realtime_setup
 

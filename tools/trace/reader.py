@@ -118,11 +118,10 @@ def parse_candump_line(line: str) -> Frame | str | None:
     except ValueError:
         return f"bad CAN ID {ident!r}"
     extended = len(ident) == 8
-    fd = remote = False
+    fd = False
     if rest[:1] == "#":  # CAN FD: ##<flags><data>
         fd, rest = True, rest[2:]
     elif rest[:1] in ("R", "r"):
-        remote = True
         dlc_text = rest[1:].split("_")[0]
         if dlc_text and not dlc_text.isdigit():
             return f"bad remote frame {parts[2]!r}"
@@ -137,7 +136,7 @@ def parse_candump_line(line: str) -> Frame | str | None:
         return f"{len(data)} data bytes"
     if extended and can_id & CAN_ERR_FLAG:
         return Frame(timestamp, can_id & 0x1FFFFFFF, data, parts[1], True, False, True, False, is_rx)
-    return Frame(timestamp, can_id & 0x1FFFFFFF, data, parts[1], extended, remote, False, fd, is_rx)
+    return Frame(timestamp, can_id & 0x1FFFFFFF, data, parts[1], extended, False, False, fd, is_rx)
 
 
 def _candump_frames(lines: Iterable[str], name: str, report: ReadReport) -> Iterator[Frame]:
@@ -149,7 +148,8 @@ def _candump_frames(lines: Iterable[str], name: str, report: ReadReport) -> Iter
         parts = line.split()
         if len(parts) == 3 or (len(parts) == 4 and parts[3] == "R"):
             ident, sep, rest = parts[2].partition("#")
-            if sep and len(ident) == 3 and rest[:1] not in ("#", "R", "r") and "_" not in rest and "." not in rest:
+            if (sep and len(ident) == 3 and len(rest) <= 16 and rest[:1] not in ("#", "R", "r")
+                    and "_" not in rest and "." not in rest):
                 stamp = parts[0]
                 if stamp[:1] == "(" and stamp[-1:] == ")":
                     try:
@@ -217,9 +217,8 @@ def _csv_frames(lines: Iterable[str], name: str, report: ReadReport) -> Iterator
             continue
         try:
             ts, ident, ext, remote, error, dlc, data = cells
-            frame = Frame(float(ts), int(ident, 16) & 0x1FFFFFFF, base64.b64decode(data, validate=True), None,
-                          ext == "1", remote == "1", error == "1")
-            int(dlc)
+            payload = bytes(int(dlc)) if remote == "1" else base64.b64decode(data, validate=True)  # as .log: the DLC
+            frame = Frame(float(ts), int(ident, 16) & 0x1FFFFFFF, payload, None, ext == "1", remote == "1", error == "1")
         except (ValueError, binascii.Error) as exc:
             report.skip(f"{name}:{number}", f"not a python-can CSV row ({exc})")
             continue

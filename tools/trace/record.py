@@ -101,11 +101,12 @@ class TraceWriter:
         self.last_timestamp = msg.timestamp
 
     def close(self, metadata: dict[str, Any]) -> dict[str, Any]:
-        """Close the last part and write the sidecar; returns the sidecar's content."""
+        """Close the last part and write the sidecar (none without a frame); returns its content."""
         self._close_part()
         meta = {"schema": SIDECAR_SCHEMA, **metadata, "frames": self.frames, "first_timestamp": self.first_timestamp,
                 "last_timestamp": self.last_timestamp, "parts": [p.name for p in self.parts]}
-        write_json(sidecar_path(self.path), meta)
+        if self.parts:
+            write_json(sidecar_path(self.path), meta)
         return meta
 
     def abort(self) -> None:
