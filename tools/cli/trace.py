@@ -14,7 +14,7 @@ FORMATS_HELP = "traces: .log (candump -l/-L), .asc, .blf, .trc, .csv (python-can
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("trace", help="record, decode, inspect, plot, replay and re-simulate CAN traces",
-                       description="CAN traces with the project's DBC: " + FORMATS_HELP + ".")
+                       description="CAN traces with the project's DBC (docs/TRACE.md). Readable " + FORMATS_HELP + ".")
     tsub = p.add_subparsers(dest="trace_command", metavar="ACTION", required=True)
 
     r = tsub.add_parser("record", help="record a bus (or an in-process walk) to a file, with rotation and a metadata sidecar")
