@@ -160,6 +160,7 @@ class GaitConfig:
     shift_time_s: float = field_spec(doc="Weight shift: time constant of the CoM's approach.", unit="s", min=0.02, max=5.0)
     shift_speed_m_s: float = field_spec(doc="Weight shift: top speed of the hips.", unit="m/s", min=0.005, max=0.5)
     lean_speed_m_s: float = field_spec(doc="Lean: speed of the hips toward the patient's lean goal.", unit="m/s", min=0.005, max=0.5)
+    lean_past_goal_m: float = field_spec(doc="The lean goes on past its goal by up to this while the sticks are lighter than swing_stick_n.", unit="m", min=0.0, max=0.2)
     lean_behind_tips_m: float = field_spec(doc="The patient's lean goal: the CoM this far behind the mean stick tip.", unit="m", min=0.0, max=0.8)
     comfort_stick_n: float = field_spec(doc="The lean pauses while a stick carries this.", unit="N", min=10.0, max=1000.0)
     swing_stick_n: float = field_spec(doc="A step is ready with both sticks carrying this.", unit="N", min=1.0, max=500.0)

@@ -14,7 +14,9 @@ sticks hold it. One gait cycle, per leg (docs/CONTROLLER.md):
    least ``stick_moved_m`` farther forward than it stood at the last landing.
 2. **Double support, lean.** With both sticks moved, the legs carry the CoM toward the patient's
    lean goal, ``lean_behind_tips`` behind the mean stick tip (at ``lean_speed``), pausing while a
-   stick carries ``comfort_stick_n``. The step is ready when both sticks carry ``swing_stick_n``,
+   stick carries ``comfort_stick_n``, and on past it by up to ``lean_past_goal`` while the sticks
+   carry less than ``swing_stick_n`` (a trailing foot at its ankle's stop props the body on its
+   toe and keeps the sticks light). The step is ready when both sticks carry ``swing_stick_n``,
    stand ``tips_ahead`` ahead of the front ankle, and the lean is over: the CoM at its goal, or no
    farther forward by ``lean_stall_m`` for ``lean_stall_s`` (a trailing leg at full reach). No
    check of where the CoM is against the stance foot: that is the step length's job (the CoM
@@ -121,7 +123,7 @@ class GaitPlanner:
         self.stand_height_m = math.nan  # the hips above the ankles when walking started
         self.depth_m = math.nan  # the stance ankles below the hips now (lowered for a long stagger)
         self.hips_cmd_x = 0.0  # the hips' commanded place ahead of the mean stance ankle
-        self.feet_spacing = np.full(2, math.nan)  # right ankle less left ankle (x, z), both planted
+        self.feet_spacing_m = math.nan  # right ankle less left ankle fore-aft, both planted
         self.pitch_goal_rad = 0.0
         self.targets = np.zeros(4)
         self.torque_ff = np.zeros(4)
@@ -146,7 +148,7 @@ class GaitPlanner:
 
     def _new_cycle(self, est: Estimate, ref_leg: int) -> None:
         self.sticks.reset(est, ref_leg)
-        self.feet_spacing = (est.ankles[RIGHT] - est.ankles[LEFT])[[0, 2]]
+        self.feet_spacing_m = float(est.ankles[RIGHT][0] - est.ankles[LEFT][0])
         self._lean_best_x, self._lean_still_s = -math.inf, 0.0
 
     def track_sticks(self, est: Estimate, m: Measurements) -> None:
@@ -162,10 +164,12 @@ class GaitPlanner:
         The ankles' midpoint is commanded where it is measured, shifted by the hips' commanded
         place relative to the feet less their measured place (at most ``max_lead`` fore-aft: a body
         that does not follow cannot wind the command up), and the two ankles at the feet's spacing
-        on the floor, as measured while both carry load. The legs then agree on where the feet are
-        (two position-controlled legs on two planted feet are a closed chain: commands that
-        disagree push the feet apart or together and one of them off the floor), and a foot that
-        carries nothing is held where it stands instead of drifting with its own measurement.
+        on the floor: fore-aft as measured while both carry load, level in height (the floor is
+        flat). The legs then agree on where the feet are (two position-controlled legs on two
+        planted feet are a closed chain: commands that disagree push the feet apart or together
+        and one of them off the floor; nearly straight legs are so stiff upward that a millimetre
+        of height between the two commands puts the body's whole weight on one foot), and a foot
+        that carries nothing is held where it stands instead of drifting with its own measurement.
         """
         p = self.p
         reach = self.leg.reach_m - p.reach_margin_m
@@ -174,8 +178,8 @@ class GaitPlanner:
         if len(legs) == 2:
             load = m.heel_force_n + m.toe_force_n
             if bool(np.all(load > p.foot_contact_n)):
-                self.feet_spacing = feet[1] - feet[0]
-            offsets = np.array([-0.5 * self.feet_spacing, 0.5 * self.feet_spacing])
+                self.feet_spacing_m = float(feet[1][0] - feet[0][0])
+            offsets = np.array([[-0.5 * self.feet_spacing_m, 0.0], [0.5 * self.feet_spacing_m, 0.0]])
         else:
             offsets = np.zeros((1, 2))
         hips_x = -float(mid[0])  # the hips ahead of the feet
@@ -221,7 +225,11 @@ class GaitPlanner:
             return DoubleSupport(False, "shift", math.nan)
         goal = float(np.mean(est.tips[:, 0])) - p.lean_behind_tips_m
         comfortable = float(np.max(m.stick_force_n)) < p.comfort_stick_n
-        dx = min(p.lean_speed_m_s * self.dt_s, max(goal - com_x, 0.0)) if comfortable else 0.0
+        loaded = bool(np.all(self.sticks.force_n > p.swing_stick_n))
+        # At its goal with the sticks still light (the trailing foot props the body on its toe),
+        # the lean goes on, up to ``lean_past_goal``, until the patient leans onto the sticks.
+        reach = goal if loaded else goal + p.lean_past_goal_m
+        dx = min(p.lean_speed_m_s * self.dt_s, max(reach - com_x, 0.0)) if comfortable else 0.0
         self._stance(LEGS, est, m, dx)
         self._solve(m)
         progress = com_x - float(est.ankles[self.sticks.ref_leg][0])  # over a planted foot: the estimate's frame moves with the hips
@@ -231,7 +239,6 @@ class GaitPlanner:
             self._lean_still_s += self.dt_s
         over = com_x >= goal - p.lean_stall_m or self._lean_still_s >= p.lean_stall_s
         ahead = bool(np.all(est.tips[:, 0] > front + p.tips_ahead_m))
-        loaded = bool(np.all(self.sticks.force_n > p.swing_stick_n))
         return DoubleSupport(over and ahead and loaded, "lean", goal)
 
     def _shift(self, est: Estimate) -> float:

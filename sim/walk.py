@@ -150,7 +150,6 @@ class Walker:
         self.next_swing = "r"
         self.stance_feet = {"l": True, "r": True}
         self.lean_goal_x = 0.0
-        self.following = False  # the arms go along with the legs fore-aft (patient-only mode)
         self.steps: list[StepRecord] = []
         self._next_step = StepRecord(index=-1, leg="", start_s=0.0)  # the step in the making, until its swing starts
         self.margin = math.inf
@@ -204,11 +203,6 @@ class Walker:
         s, dt = self.s, self.dt_control
         self.phase_t += dt
         com = self.kin.com
-        # With the exoskeleton under its own controller the patient stands along with its legs
-        # until it starts walking.
-        self.following = not self.scripted_exo and self.phase is Phase.SETTLE
-        if self.following:
-            self.com_target = com[:2].copy()
         if self.phase is Phase.SETTLE:
             if self.phase_t >= s.settle_s and self.walking:
                 self._start_stick_moves()
@@ -343,8 +337,10 @@ class Walker:
                 self.next_swing = lifted[0]
                 self._start_swing(lifted[0])
             else:  # a foot lifted outside the patient's lean: balance on what is down, no step
+                # (a foot on the floor is support whatever it carries now: its load follows the CoM)
                 for side in SIDES:
-                    self.stance_feet[side] = self.unloaded_s[side] < s.foot_lift_s
+                    off = self.kin.joint_origin[self.ankle_idx[side]][2] - self.body.ankle_height_m > _OFF_FLOOR_M
+                    self.stance_feet[side] = not (self.unloaded_s[side] >= s.foot_lift_s and off)
                 if not any(self.stance_feet.values()):
                     self.stance_feet = {"l": True, "r": True}  # airborne: keep the model's legs
         elif self.unloaded_s[self.swing_leg] == 0.0 and self.phase_t >= s.foot_lift_s:
@@ -383,16 +379,13 @@ class Walker:
         )
         z_goal = min(self.hip_height_nominal, self.body.ankle_height_m + reach)
         self.hip_goal[1] += np.clip(z_goal - self.hip_goal[1], -0.1 * dt, 0.1 * dt)
-        hip_target = self.hip_goal[1] if self.scripted_exo else trunk_origin[2]  # the legs hold the height
-        com_velocity = kin.com_velocity.copy()
-        if self.following:
-            com_velocity[0] = 0.0  # going along with the legs, not braking them
+        hip_target = self.hip_goal[1]
         self.pitch_goal += float(np.clip(s.trunk_pitch_rad - self.pitch_goal, -0.2 * dt, 0.2 * dt))
         # Stance feet rest on the floor: the body above the ankles is what the contacts must carry.
         foot_links = {f: w.link_index[f"foot_{f}"] for f in feet}
         carried = w.total_mass - sum(w.masses[i + 1] for i in foot_links.values())
         wrench = desired_wrench(
-            carried, com, com_velocity, self.com_target, trunk_origin[2], hip_target, base_v[2],
+            carried, com, kin.com_velocity, self.com_target, trunk_origin[2], hip_target, base_v[2],
             rpy, trunk_rot.T @ omega, np.array([0.0, s.trunk_pitch_rad]), self.gains,
         )
         # In 3-D the legs (hip and knee pitch only) cannot push sideways: the sticks carry the
@@ -606,6 +599,7 @@ class Walker:
 
 
 _ALLOWED_CONTACTS = frozenset({"foot_l", "foot_r", "forearm_l", "forearm_r"})
+_OFF_FLOOR_M = 0.005  # an unloaded foot whose ankle is this much higher than standing is off the floor
 
 
 def _minimum_jerk(a: float) -> float:
