@@ -109,6 +109,7 @@ class ControllerCore:
         self.steps: list[StepRecord] = []
         self._step = StepRecord(index=0, leg="", start_tick=0)  # the step in the making
         self._targets: np.ndarray | None = None  # the setpoints sent last tick (None: the last commands held)
+        self.gait_part = ""  # shift, lean or swing while walking
 
     # -- input -----------------------------------------------------------------------------------
 
@@ -196,8 +197,10 @@ class ControllerCore:
             self.gait.track_sticks(estimate, measurements)
             self._step.add(measurements.stick_force_n)
             if before == GaitState.DOUBLE_SUPPORT:
-                ready = self.gait.double_support(estimate, measurements, _leg_index(self.fsm.next_swing)).ready
+                ds = self.gait.double_support(estimate, measurements, _leg_index(self.fsm.next_swing))
+                ready, self.gait_part = ds.ready, ds.part
             else:
+                self.gait_part = "swing"
                 swing = self.gait.swing(estimate, measurements)
                 done, landed = swing.done, swing.landed
         inputs = FsmInputs(

@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from config.controller_schema import ControllerConfig
 from controller.compensation import StepBounds
 from controller.kinematics import Leg
 from controller.pi2 import Pi2Learner, Pi2Params
+from controller.policy import StepPolicy
+
+if TYPE_CHECKING:
+    from controller.patients import PatientSaver
 
 
 def leg(cfg: ControllerConfig) -> Leg:
@@ -40,3 +46,39 @@ def pi2_params(cfg: ControllerConfig) -> Pi2Params:
 def learner(cfg: ControllerConfig, rng: np.random.Generator) -> Pi2Learner:
     """A new learner at the configured start theta = (alpha, Xhat_CoM)."""
     return Pi2Learner(pi2_params(cfg), np.array([cfg.learning.initial_alpha, cfg.learning.initial_xhat]), rng)
+
+
+def step_policy(
+    cfg: ControllerConfig, *, fixed_m: float | None = None, learn: bool = False, patient: str | None = None,
+    patients_dir: str | None = None, rng: np.random.Generator | None = None,
+) -> tuple[StepPolicy, PatientSaver | None]:
+    """Where every swing's step length comes from, and the patient-file writer to close at the end
+    (None when nothing is saved):
+
+    * ``fixed_m``: every step that long (the baseline without compensation);
+    * ``learn``: online PI² from the patient's stored learner (or a new one at the configured
+      start), its file rewritten after every update when a ``patient`` is named;
+    * otherwise the compensation with the patient's learned theta, or the configured one.
+    """
+    from controller.patients import PatientError, PatientSaver, load_patient, patient_path, restore_learner
+
+    bounds = step_bounds(cfg)
+    directory = patients_dir if patients_dir is not None else cfg.patients_dir
+    if fixed_m is not None:
+        if learn:
+            raise PatientError("a fixed step length cannot be learned: give --fixed-step or --learn, not both")
+        return StepPolicy(bounds, fixed_m=fixed_m), None
+    record = load_patient(directory, patient) if patient else None
+    if not learn:
+        theta = record.theta if record is not None else (cfg.compensation.alpha, cfg.compensation.xhat_com)
+        return StepPolicy(bounds, theta=theta), None
+    rng = rng if rng is not None else np.random.default_rng()
+    pi2 = restore_learner(record, rng, patient_path(directory, patient)) if record is not None else None
+    pi2 = pi2 or learner(cfg, rng)
+    saver = PatientSaver(directory, patient) if patient else None
+
+    def on_update(l: Pi2Learner, _record: object) -> None:
+        if saver is not None:
+            saver.submit(l.evaluation_theta(), l)
+
+    return StepPolicy(bounds, learner=pi2, on_update=on_update), saver

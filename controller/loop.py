@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import can
 
 from controller.core import ControllerCore, TickResult
+from controller.fsm import SWINGS
 from controller.telemetry import TelemetryLog
 from controller.timing import TickStats
 from protocol.catalog import TICK_MS
@@ -122,6 +123,7 @@ class LockstepLoop:
 
     def _record(self, result: TickResult, work_ns: int, lateness_ns: int) -> dict:
         m, est = self.core.measurements, result.estimate
+        step = self.core.steps[-1] if self.core.steps and result.state in SWINGS else None
         commands = [values for name, values in result.frames if name.startswith("JOINT_COMMAND")]
         return {
             "tick": result.tick,
@@ -134,8 +136,11 @@ class LockstepLoop:
             "trunk_rpy_rad": None if m is None else m.trunk_rpy_rad,
             "com_m": None if est is None else est.com,
             "x_ratio": None if est is None else est.x_ratio,
-            "step_length_m": None,  # no swings yet
-            "cost": None,
+            "gait": self.core.gait_part if self.core.fsm.moving else None,
+            "step": None if step is None else step.index,
+            "step_length_m": None if step is None else step.length_m,
+            "step_cost_n": None if result.landed is None else result.landed.mean_stick_force_n,  # paper eq. (10), at landing
+            "theta": None if step is None else step.theta,
             "work_us": round(work_ns / 1e3, 1),
             "lateness_us": round(lateness_ns / 1e3, 1),
             "events": result.events,

@@ -21,8 +21,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from config.loader import AiderError
 from controller.compensation import StepBounds, StepGoal, compensated_step
 from controller.pi2 import Pi2Learner, UpdateRecord
+
+
+class PolicyError(AiderError):
+    """A step policy that cannot be used (a fixed step outside the safe range, ...)."""
 
 
 @dataclass
@@ -79,9 +84,9 @@ class StepPolicy:
 
     def __post_init__(self) -> None:
         if self.fixed_m is not None and not self.bounds.min_m <= self.fixed_m <= self.bounds.max_m:
-            raise ValueError(f"fixed step {self.fixed_m} m outside the safe range [{self.bounds.min_m}, {self.bounds.max_m}] m")
+            raise PolicyError(f"fixed step {self.fixed_m} m outside the safe range [{self.bounds.min_m}, {self.bounds.max_m}] m (controller.step)")
         if self.fixed_m is not None and self.learner is not None:
-            raise ValueError("a fixed step length cannot be learned")
+            raise PolicyError("a fixed step length cannot be learned")
 
     @property
     def mode(self) -> str:

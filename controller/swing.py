@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from config.controller_schema import ControllerConfig
+from config.loader import AiderError
 from controller.demonstration import demonstration_hash, swing_demonstration
 from controller.dmp import DmpParams, DmpWeights, fit
 
@@ -24,7 +25,7 @@ WEIGHTS_PATH = Path(__file__).resolve().parents[1] / "config" / "swing_weights.j
 FORMAT = 1
 
 
-class SwingWeightsError(ValueError):
+class SwingWeightsError(AiderError):
     """The cached weights are missing, unreadable or do not belong to the configuration."""
 
 

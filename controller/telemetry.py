@@ -17,7 +17,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 #: field -> (unit, meaning); every record has exactly these fields
 FIELDS: dict[str, tuple[str, str]] = {
@@ -31,8 +31,11 @@ FIELDS: dict[str, tuple[str, str]] = {
     "trunk_rpy_rad": ("rad", "trunk roll, pitch, yaw"),
     "com_m": ("m", "estimated CoM in the heading frame"),
     "x_ratio": ("", "estimated X_CoM / X_SP (null: undefined)"),
+    "gait": ("", "part of the gait while walking: shift, lean or swing (null otherwise)"),
+    "step": ("", "index of the current swing's step (null outside swings)"),
     "step_length_m": ("m", "step length of the current swing (null outside swings)"),
-    "cost": ("N", "per-step cost so far (mean stick force), null outside steps"),
+    "step_cost_n": ("N", "cost of the step that landed this tick: its mean stick force (paper eq. 10), else null"),
+    "theta": ("", "(alpha, Xhat_CoM) of the current swing's compensation (null: fixed step or outside swings)"),
     "work_us": ("us", "controller work of the tick"),
     "lateness_us": ("us", "wake-up lateness of the tick (real time)"),
     "events": ("", "state changes and faults of the tick"),

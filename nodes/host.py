@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import threading
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
@@ -140,6 +140,7 @@ class NodesHost:
         self.own_tick = -1  # real time: the node's own tick counter
         self.last_sync_tick = -1
         self.gait_state: GaitState | None = None
+        self.on_sync_hook: Callable[[int], None] | None = None  # after each SYNC's reports (recording the ground truth)
 
     # -- lifecycle -------------------------------------------------------------------------------
 
@@ -222,6 +223,8 @@ class NodesHost:
             self._physics_tick()
             self._heartbeats(tick)
         self._report(tick)
+        if self.on_sync_hook is not None:
+            self.on_sync_hook(tick)
 
     def on_timer(self) -> None:
         """Real time: the nodes' own 20 ms tick (physics, watchdogs, heartbeats)."""
@@ -386,6 +389,15 @@ class NodesHost:
             "sensor_saturations": dict(self.stats.saturated),
             "fall": fall,
         }
+
+    def truth(self) -> dict[str, Any]:
+        """The simulation's ground truth now (tests, experiments and the walk's report; never
+        sent on the bus): X_CoM/X_SP by the estimator's contact thresholds of the ``controller``
+        section (nan without one), and the fall criterion."""
+        body = self.cfg.controller.body if self.cfg.controller is not None else None
+        ratio = (self.patient.x_ratio_truth(body.foot_loaded_n, body.stick_loaded_n, body.min_support_m)
+                 if body is not None else float("nan"))
+        return {"tick": self.last_sync_tick, "t_s": round(self.patient.t, 3), "x_ratio": ratio, "fall": self.patient.fall}
 
     def status_line(self) -> str:
         s = self.status()

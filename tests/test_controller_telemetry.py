@@ -8,7 +8,7 @@ import threading
 import numpy as np
 import pytest
 
-from controller.telemetry import FIELDS, TelemetryLog, read_log
+from controller.telemetry import SCHEMA_VERSION, FIELDS, TelemetryLog, read_log
 
 
 def record(tick: int) -> dict:
@@ -24,7 +24,7 @@ def test_records_follow_the_schema_line(tmp_path):
     report = log.close()
     assert report == {"path": str(tmp_path / "t.jsonl"), "written": 50, "dropped": 0, "error": None}
     schema, records = read_log(tmp_path / "t.jsonl")
-    assert schema["version"] == 1 and list(schema["fields"]) == list(FIELDS)
+    assert schema["version"] == SCHEMA_VERSION and list(schema["fields"]) == list(FIELDS)
     assert [r["tick"] for r in records] == list(range(50))
     assert records[0]["q_rad"] == [0.1, 0.2, 0.3, 0.4] and records[0]["x_ratio"] is None  # nan -> null
     assert all(list(r) == list(FIELDS) for r in records)

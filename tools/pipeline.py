@@ -1,10 +1,14 @@
-"""The whole pipeline in one process: the main controller, the four emulated node boards and the
-simulated HHEA, talking CAN frames over python-can's in-process virtual bus in lock-step.
+"""A walk through the whole pipeline: the main controller, the four emulated node boards and the
+simulated HHEA, talking CAN frames in lock-step.
 
-This is what ``aider-exo walk`` runs (and the experiments build on): every frame the controller
-sends or reads is encoded, CRC-protected and counted exactly as on a real bus; only the transport
-is a queue. Lock-step makes a walk deterministic for a seed. The simulation's ground truth (falls,
-X_CoM/X_SP) is read beside the pipeline, never fed into it.
+* :func:`walk`: everything in one process on python-can's in-process virtual bus. Every frame the
+  controller sends or reads is encoded, CRC-protected and counted exactly as on a real bus; only
+  the transport is a queue. What ``aider-exo walk`` runs by default and the experiments build on.
+* :func:`walk_controller`: the controller's side alone on a bus whose nodes run elsewhere (``aider-exo
+  nodes`` in another process on ``vcan0``).
+
+Lock-step makes a walk deterministic for a seed. The simulation's ground truth (falls, X_CoM/X_SP)
+is read beside the pipeline, never fed into it.
 """
 
 from __future__ import annotations
@@ -21,9 +25,13 @@ from config import Config, with_overrides
 from controller.core import ControllerCore, TickResult
 from controller.loop import LockstepLoop
 from controller.policy import StepPolicy, StepRecord
-from nodes.host import NodesHost
+from controller.telemetry import TelemetryLog
 from protocol.catalog import TICK_MS
 from protocol.clock import MonotonicClock
+from protocol.enums import GaitState
+
+#: called after every tick with the tick's result and the controller core
+TickHook = Callable[[TickResult, ControllerCore], None]
 
 
 @dataclass
@@ -35,7 +43,8 @@ class WalkOutcome:
     policy: str
     steps: list[StepRecord]
     fell: bool = False
-    fall_reason: str | None = None
+    fall_reason: str | None = None  # the simulation's fall criterion, or the controller's fall detection
+    fault: str | None = None  # the cause the controller's FAULT latched on
     stalled: bool = False  # the time ran out before the cycles were walked
     final_state: str = ""
     sim_time_s: float = 0.0
@@ -45,6 +54,7 @@ class WalkOutcome:
     events: list[str] = field(default_factory=list)
     receiver: dict[str, Any] = field(default_factory=dict)
     theta: tuple[float, float] | None = None
+    timing: dict[str, Any] = field(default_factory=dict)
 
     @property
     def landed(self) -> list[StepRecord]:
@@ -74,6 +84,7 @@ class WalkOutcome:
             "steps_completed": len(self.landed),
             "falls": int(self.fell),
             "fall_reason": self.fall_reason,
+            "fault": self.fault,
             "stalled": self.stalled,
             "final_state": self.final_state,
             "mean_stick_force_n": _round(self.mean_stick_force_n, 2),
@@ -85,6 +96,7 @@ class WalkOutcome:
             "wall_time_s": round(self.wall_time_s, 2),
             "ticks": self.ticks,
             "receiver": self.receiver,
+            "timing": self.timing,
             "steps": [s.as_dict() for s in self.steps],
         }
 
@@ -98,21 +110,68 @@ def walk_config(cfg: Config, mode: str, channel: str) -> Config:
     return with_overrides(cfg, {"sim.mode": mode, "bus.interface": "virtual", "bus.channel": channel})
 
 
+def default_max_time_s(cycles: int) -> float:
+    """Simulated time a walk of ``cycles`` gait cycles may take before it counts as stalled."""
+    return 20.0 + 15.0 * cycles
+
+
+def drive(
+    loop: LockstepLoop, outcome: WalkOutcome, *, cycles: int, max_ticks: int,
+    truth_ratio: Callable[[], float] | None = None, fallen: Callable[[], str | None] | None = None,
+    on_tick: TickHook | None = None,
+) -> TickResult | None:
+    """Run ``loop`` with walking asked until ``cycles`` gait cycles have landed, a fall, a FAULT, or
+    ``max_ticks``; fills ``outcome`` (the steps are the core's own list)."""
+    core = loop.core
+    core.request_walk()
+    result = None
+    for _ in range(max_ticks):
+        result = loop.step()
+        if truth_ratio is not None and result.estimate is not None:
+            truth = truth_ratio()
+            if math.isfinite(truth) and math.isfinite(result.estimate.x_ratio):
+                outcome.ratio_errors.append(abs(result.estimate.x_ratio - truth))
+        if on_tick is not None:
+            on_tick(result, core)
+        fall = fallen() if fallen is not None else None
+        if fall:
+            outcome.fell, outcome.fall_reason = True, fall
+            core.policy.fell()
+            break
+        if result.state == GaitState.FAULT:
+            outcome.fault = core.fsm.transitions[-1].cause
+            if outcome.fault.startswith("FALL"):
+                outcome.fell, outcome.fall_reason = True, outcome.fault
+            break
+        if len(outcome.landed) >= 2 * cycles:
+            break
+    else:
+        outcome.stalled = True
+    outcome.final_state = result.state.name if result else ""
+    outcome.ticks = loop.report.ticks
+    outcome.events = loop.report.events
+    outcome.receiver = loop.rx.stats.as_dict()
+    outcome.timing = loop.stats.summary()
+    outcome.theta = core.policy.current_theta() if core.policy.learner is None else tuple(core.policy.learner.evaluation_theta())
+    return result
+
+
 def walk(
     cfg: Config, *, cycles: int, seed: int, mode: str = "sagittal", policy: StepPolicy | None = None,
-    max_time_s: float | None = None, on_tick: Callable[[TickResult, ControllerCore, NodesHost], None] | None = None,
-    channel: str | None = None,
+    max_time_s: float | None = None, on_tick: Callable[[TickResult, ControllerCore, Any], None] | None = None,
+    channel: str | None = None, telemetry: TelemetryLog | None = None,
 ) -> WalkOutcome:
-    """Walk ``cycles`` gait cycles (a left and a right step each) through the pipeline; ends early
-    at a fall, a controller fault, or ``max_time_s`` of simulated time (default: 20 s plus 15 s per
-    cycle, a stall). Deterministic for ``seed``."""
+    """Walk ``cycles`` gait cycles (a left and a right step each) with everything in this process;
+    ends early at a fall, a controller fault, or ``max_time_s`` of simulated time (default
+    :func:`default_max_time_s`: a stall). Deterministic for ``seed``. ``on_tick(result, core,
+    host)`` sees the nodes' host too (the simulation, for recording)."""
+    from nodes.host import NodesHost
+
     channel = channel or f"aider-walk-{seed}-{id(cfg)}"
     cfg = walk_config(cfg, mode, channel)
-    max_time_s = max_time_s if max_time_s is not None else 20.0 + 15.0 * cycles
-    max_ticks = int(max_time_s * 1000 / TICK_MS)
+    max_time_s = max_time_s if max_time_s is not None else default_max_time_s(cycles)
     core = ControllerCore(cfg.controller, policy=policy)
     outcome = WalkOutcome(mode=mode, seed=seed, policy=core.policy.mode, steps=core.steps)
-    body = cfg.controller.body
     clock = MonotonicClock()
     t0 = clock.now_ns()
     with can.Bus(interface="virtual", channel=channel, ignore_config=True) as node_bus, \
@@ -120,34 +179,35 @@ def walk(
         host = NodesHost(cfg, node_bus, lockstep=True, seed=seed)
         try:
             host.boot()
-            loop = LockstepLoop(core, ctl_bus, pump=lambda: host.poll(0.0), max_delta_counter=cfg.protocol.max_delta_counter)
-            core.request_walk()
-            result = None
-            for _ in range(max_ticks):
-                result = loop.step()
-                if result.estimate is not None:
-                    truth = host.patient.x_ratio_truth(body.foot_loaded_n, body.stick_loaded_n, body.min_support_m)
-                    if math.isfinite(truth) and math.isfinite(result.estimate.x_ratio):
-                        outcome.ratio_errors.append(abs(result.estimate.x_ratio - truth))
-                if on_tick is not None:
-                    on_tick(result, core, host)
-                if host.patient.fall:
-                    outcome.fell, outcome.fall_reason = True, host.patient.fall
-                    core.policy.fell()
-                    break
-                if result.state.name == "FAULT":
-                    break
-                if len([s for s in core.steps if s.landed]) >= 2 * cycles:
-                    break
-            else:
-                outcome.stalled = True
-            outcome.final_state = result.state.name if result else ""
+            loop = LockstepLoop(core, ctl_bus, pump=lambda: host.poll(0.0), max_delta_counter=cfg.protocol.max_delta_counter,
+                                telemetry=telemetry)
+            drive(
+                loop, outcome, cycles=cycles, max_ticks=int(max_time_s * 1000 / TICK_MS),
+                truth_ratio=lambda: host.truth()["x_ratio"],
+                fallen=lambda: host.patient.fall,
+                on_tick=None if on_tick is None else (lambda r, c: on_tick(r, c, host)),
+            )
             outcome.sim_time_s = host.patient.t
-            outcome.ticks = loop.report.ticks
-            outcome.events = loop.report.events
-            outcome.receiver = loop.rx.stats.as_dict()
         finally:
             host.close()
-    outcome.theta = core.policy.current_theta() if core.policy.learner is None else None
+    outcome.wall_time_s = (clock.now_ns() - t0) / 1e9
+    return outcome
+
+
+def walk_controller(
+    cfg: Config, bus: can.BusABC, *, cycles: int, seed: int, mode: str, policy: StepPolicy | None = None,
+    max_time_s: float | None = None, on_tick: TickHook | None = None, telemetry: TelemetryLog | None = None,
+) -> WalkOutcome:
+    """The controller's side of a lock-step walk over ``bus``, whose nodes run in another process
+    (they must be up, in lock-step). Falls are the controller's own fall detection; the
+    simulation's ground truth stays with the nodes."""
+    max_time_s = max_time_s if max_time_s is not None else default_max_time_s(cycles)
+    core = ControllerCore(cfg.controller, policy=policy)
+    outcome = WalkOutcome(mode=mode, seed=seed, policy=core.policy.mode, steps=core.steps)
+    clock = MonotonicClock()
+    t0 = clock.now_ns()
+    loop = LockstepLoop(core, bus, max_delta_counter=cfg.protocol.max_delta_counter, telemetry=telemetry)
+    drive(loop, outcome, cycles=cycles, max_ticks=int(max_time_s * 1000 / TICK_MS), on_tick=on_tick)
+    outcome.sim_time_s = outcome.ticks * TICK_MS / 1000.0
     outcome.wall_time_s = (clock.now_ns() - t0) / 1e9
     return outcome

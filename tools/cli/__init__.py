@@ -24,6 +24,7 @@ SUBCOMMANDS = {
     "dmp": "tools.cli.dmp",
     "nodes": "tools.cli.nodes",
     "controller": "tools.cli.controller",
+    "walk": "tools.cli.walk",
     "trace": "tools.cli.trace",
 }
 

@@ -6,26 +6,33 @@ import argparse
 import sys
 from typing import Any
 
-from tools.cli.common import StopSignals, add_config_options, load_cli_config, positive_int, print_json
+from tools.cli.common import StopSignals, add_config_options, load_cli_config, positive_float, positive_int, print_json
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "controller",
-        help="run the main controller's tick loop on a CAN bus (nodes up, supervision, estimation, hold)",
+        help="run the main controller's tick loop on a CAN bus (nodes up, supervision, estimation, walking)",
         description=(
             "The main controller: SYNC every tick, the nodes' frames read and checked, node supervision, state "
-            "estimation and the gait FSM, joint commands through the safety envelope, its heartbeat. Today it "
-            "brings the nodes up and holds the legs (walking comes with the rest of issue 6). Lock-step: each "
-            "tick waits for the nodes' frames of its SYNC; real time (default): absolute 20 ms deadlines with the "
-            "real-time set-up where the OS permits it. A one-line status per second on stderr; SIGINT or SIGTERM "
-            "ends the run with cyclictest-style tick statistics."
+            "estimation and the gait FSM, the DMP swing with the CoM-compensated step length, joint commands "
+            "through the safety envelope, its heartbeat. It brings the nodes up and, once standing, walks (the "
+            "operator's start; --stand only stands). Lock-step: each tick waits for the nodes' frames of its SYNC; "
+            "real time (default): absolute 20 ms deadlines with the real-time set-up where the OS permits it. A "
+            "one-line status per second on stderr; SIGINT or SIGTERM asks for a stop (the swing in progress "
+            "ends first), then the run ends with cyclictest-style tick statistics."
         ),
     )
     add_config_options(p)
     p.add_argument("--lockstep", action="store_true", help="a tick advances when the nodes have reported (default: real time)")
     p.add_argument("--ticks", type=positive_int, help="stop after this many ticks (default: run until SIGINT/SIGTERM)")
     p.add_argument("--cpu", type=int, help="real time: pin the loop to this CPU")
+    p.add_argument("--stand", action="store_true", help="stand only: never start walking")
+    p.add_argument("--cycles", type=positive_int, metavar="N", help="stop walking after N gait cycles, then exit")
+    p.add_argument("--fixed-step", type=positive_float, metavar="M", help="every step this long: no compensation (the baseline)")
+    p.add_argument("--learn", action="store_true", help="learn the compensation online with PI² (saved to --patient's file)")
+    p.add_argument("--patient", metavar="NAME", help="walk with (and, learning, update) this patient's learned parameters")
+    p.add_argument("--patients-dir", metavar="DIR", help="folder of the patient files (default: controller.patients_dir)")
     p.add_argument("--log", metavar="FILE", help="per-tick telemetry as JSON lines (the first line is the schema)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout at exit")
     p.add_argument("--quiet", action="store_true", help="no status lines")
@@ -56,13 +63,20 @@ def run(args: argparse.Namespace) -> int:
         from config import ConfigError
 
         raise ConfigError("the controller needs the controller section", key="controller")
+    from controller.factory import step_policy
+    from protocol.enums import GaitState
+
+    # Everything that can be wrong with the configuration or a patient file fails here, before the bus opens.
+    policy, saver = step_policy(cfg.controller, fixed_m=args.fixed_step, learn=args.learn, patient=args.patient,
+                                patients_dir=args.patients_dir)
+    core = ControllerCore(cfg.controller, policy=policy)
     notifier = Notifier()
     rt = None
     telemetry = None
+    walking = {GaitState.DOUBLE_SUPPORT, GaitState.SWING_LEFT, GaitState.SWING_RIGHT}
     with StopSignals() as stop:
         bus = open_bus(cfg.bus)
         try:
-            core = ControllerCore(cfg.controller)
             clock = MonotonicClock()
             telemetry = TelemetryLog(args.log) if args.log else None
             kwargs = dict(max_delta_counter=cfg.protocol.max_delta_counter, clock=clock, telemetry=telemetry)
@@ -76,7 +90,18 @@ def run(args: argparse.Namespace) -> int:
             notifier.ready("controller loop running")
             next_status = clock.now_ns()
             result = None
-            while not stop.requested and (args.ticks is None or loop.report.ticks < args.ticks):
+            stopping_since = None  # the tick at which a stop was asked
+            while args.ticks is None or loop.report.ticks < args.ticks:
+                state = result.state if result is not None else GaitState.INIT
+                if stopping_since is None:
+                    if not args.stand and state == GaitState.STAND and not core.steps:
+                        core.request_walk()  # the operator's start: once, when first standing
+                    landed = sum(1 for step in core.steps if step.landed)
+                    if stop.requested or (args.cycles is not None and landed >= 2 * args.cycles):
+                        core.request_stop()  # the swing in progress ends first
+                        stopping_since = loop.report.ticks
+                elif state not in walking or loop.report.ticks - stopping_since > 500:
+                    break
                 result = loop.step()
                 notifier.ping(clock.now_ns())  # from the loop itself: a hung loop stops the pings
                 if not args.quiet and clock.now_ns() >= next_status:
@@ -86,6 +111,8 @@ def run(args: argparse.Namespace) -> int:
             notifier.stopping()
             notifier.close()
             log_report = telemetry.close() if telemetry is not None else None
+            if saver is not None:
+                saver.close()
             bus.shutdown()
             if rt is not None:
                 rt.close()
@@ -102,6 +129,10 @@ def run(args: argparse.Namespace) -> int:
         "events": loop.report.events,
         "telemetry": log_report,
         "x_ratio": round(result.estimate.x_ratio, 4) if result and result.estimate else None,
+        "policy": core.policy.mode,
+        "steps_completed": sum(1 for step in core.steps if step.landed),
+        "steps": [step.as_dict() for step in core.steps],
+        "patient_file": {"path": str(saver.path), "writes": saver.writes, "errors": saver.errors} if saver else None,
         "stopped_by": stop.name,
     }
     if args.json:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from tools.cli.common import StopSignals, add_config_options, load_cli_config, print_json
 
@@ -24,6 +25,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gui", action="store_true", help="open the PyBullet window")
     p.add_argument("--seed", type=int, default=0, help="seed of sensor noise, the patient and fault injection (default 0)")
     p.add_argument("--mode", choices=("full3d", "sagittal"), help="model mode (default: sim.mode of the config)")
+    p.add_argument("--truth", metavar="FILE", help="write the simulation's ground truth after every SYNC as JSON lines "
+                   "(tick, X_CoM/X_SP, fall): for tests and experiments, never sent on the bus")
     p.add_argument("--json", action="store_true", help="print the final state as JSON on stdout at exit")
     p.add_argument("--quiet", action="store_true", help="no status lines")
     p.set_defaults(func=run)
@@ -42,6 +45,9 @@ def run(args: argparse.Namespace) -> int:
         bus = open_bus(cfg.bus)
         try:
             host = NodesHost(cfg, bus, lockstep=args.lockstep, seed=args.seed, gui=args.gui, clock=MonotonicClock())
+            truth = open(args.truth, "w", encoding="utf-8") if args.truth else None
+            if truth is not None:
+                host.on_sync_hook = lambda _tick: truth.write(json.dumps(host.truth(), allow_nan=True) + "\n")
             try:
                 host.boot()
                 interval = cfg.nodes.status_interval_s if cfg.nodes else 1.0
@@ -52,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
                 result = host.status()
             finally:
                 host.close()
+                if truth is not None:
+                    truth.close()
         finally:
             bus.shutdown()
     result["stopped_by"] = stop.name

@@ -1,0 +1,148 @@
+"""Learned step-length compensation per patient: ``<patients_dir>/<name>.json``.
+
+A patient file holds the theta = (alpha, Xhat_CoM) to walk with (the learner's evaluation theta:
+the mean of its last updates) and the whole learner state, so that learning resumes where it
+stopped. It is written atomically after every update; a file that cannot be read, does not parse
+or holds parameters out of their bounds is a :class:`PatientError` naming the file, never a
+silent fallback to the defaults.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from config.loader import AiderError
+from controller.pi2 import LearnerError, Pi2Learner
+
+FORMAT = "aider-exo patient"
+VERSION = 1
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+
+
+class PatientError(AiderError):
+    """A patient name or file that cannot be used (one line, naming the file)."""
+
+
+@dataclass(frozen=True)
+class PatientRecord:
+    name: str
+    theta: tuple[float, float]  # (alpha, Xhat_CoM) to walk with
+    learner_state: dict[str, Any] | None
+
+
+def patient_path(directory: str | os.PathLike[str], name: str) -> Path:
+    if not _NAME.match(name):
+        raise PatientError(f"patient name {name!r}: use 1-64 letters, digits, '_', '-' or '.', starting with a letter or digit")
+    return Path(directory) / f"{name}.json"
+
+
+def load_patient(directory: str | os.PathLike[str], name: str) -> PatientRecord | None:
+    """The patient's record, or None if the patient has no file yet."""
+    path = patient_path(directory, name)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        raise PatientError(f"{path}: cannot read the patient file ({exc})") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT or data.get("version") != VERSION:
+        raise PatientError(f"{path}: not an {FORMAT!r} file of version {VERSION}")
+    theta = data.get("theta")
+    if not (isinstance(theta, list) and len(theta) == 2 and all(isinstance(v, (int, float)) and math.isfinite(v) for v in theta)):
+        raise PatientError(f"{path}: theta must be two finite numbers (alpha, Xhat_CoM), got {theta!r}")
+    learner = data.get("learner")
+    if learner is not None and not isinstance(learner, dict):
+        raise PatientError(f"{path}: learner must be an object or null")
+    return PatientRecord(name, (float(theta[0]), float(theta[1])), learner)
+
+
+def restore_learner(record: PatientRecord, rng: np.random.Generator, path: str | os.PathLike[str]) -> Pi2Learner | None:
+    """The learner stored in ``record`` (None if it has none)."""
+    if record.learner_state is None:
+        return None
+    try:
+        return Pi2Learner.from_state_dict(record.learner_state, rng)
+    except LearnerError as exc:
+        raise PatientError(f"{path}: {exc}") from None
+
+
+def save_patient(directory: str | os.PathLike[str], name: str, theta: Any, learner: Pi2Learner | None) -> Path:
+    """Write the patient's file atomically (the folder is created if needed)."""
+    path = patient_path(directory, name)
+    _write(path, [float(v) for v in np.asarray(theta, dtype=float).reshape(2)], learner.state_dict() if learner else None, name)
+    return path
+
+
+def _write(path: Path, theta: list[float], learner_state: dict[str, Any] | None, name: str) -> None:
+    data = {"format": FORMAT, "version": VERSION, "patient": name, "theta": theta, "learner": learner_state}
+    text = json.dumps(data, indent=1, allow_nan=False)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                f.write(text + "\n")
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+    except OSError as exc:
+        raise PatientError(f"{path}: cannot write the patient file ({exc})") from None
+
+
+class PatientSaver:
+    """Writes a patient's file off the tick: :meth:`submit` hands the newest state to a writer
+    thread (a newer state replaces one not yet written), :meth:`close` writes what is pending and
+    stops it. A write error is kept (``errors``) and reported by the caller, never raised into the
+    tick."""
+
+    def __init__(self, directory: str | os.PathLike[str], name: str) -> None:
+        import threading
+
+        self.directory, self.name = directory, name
+        self.path = patient_path(directory, name)
+        self.errors: list[str] = []
+        self.writes = 0
+        self._pending: tuple[list[float], dict[str, Any] | None] | None = None
+        self._cond = threading.Condition()
+        self._closing = False
+        self._thread = threading.Thread(target=self._run, name=f"patient-{name}", daemon=True)
+        self._thread.start()
+
+    def submit(self, theta: Any, learner: Pi2Learner | None) -> None:
+        state = learner.state_dict() if learner is not None else None  # a snapshot, taken now
+        with self._cond:
+            self._pending = ([float(v) for v in np.asarray(theta, dtype=float).reshape(2)], state)
+            self._cond.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while self._pending is None and not self._closing:
+                    self._cond.wait()
+                if self._pending is None:
+                    return
+                theta, state = self._pending
+                self._pending = None
+            try:
+                _write(self.path, theta, state, self.name)
+                self.writes += 1
+            except PatientError as exc:
+                self.errors.append(str(exc))
+
+    def close(self) -> None:
+        with self._cond:
+            self._closing = True
+            self._cond.notify()
+        self._thread.join()

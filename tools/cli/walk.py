@@ -1,0 +1,218 @@
+"""``aider-exo walk``: the main controller, the node boards and the simulated HHEA walking together."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from tools.cli.common import StopSignals, add_config_options, load_cli_config, positive_float, positive_int, print_json
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "walk",
+        help="walk the simulated HHEA under the main controller, over CAN in lock-step",
+        description=(
+            "The main controller (gait FSM, DMP swing, CoM compensation, optionally learning) walks the "
+            "simulated HHEA through the four emulated node boards, every value a CAN frame, in lock-step "
+            "(deterministic for a seed). By default everything runs in this process on the in-process virtual "
+            "bus; with --bus socketcan the node boards run as a second process (aider-exo nodes) on that "
+            "channel. A one-line status while it walks (on stderr), a summary at the end: steps and cycles "
+            "walked, falls, mean stick force, and the error of the estimated X_CoM/X_SP against the "
+            "simulation's ground truth."
+        ),
+    )
+    add_config_options(p)
+    p.add_argument("--steps", type=positive_int, default=10, metavar="N",
+                   help="gait cycles to walk (the paper's steps: a left and a right swing each; default 10)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the patient's stick placement and sensor noise (default 0)")
+    p.add_argument("--mode", choices=("sagittal", "full3d"), default="sagittal",
+                   help="simulation mode (default sagittal: the 3-D model does not walk yet, docs/SIM.md)")
+    p.add_argument("--fixed-step", type=positive_float, metavar="M", help="every step this long: no compensation (the baseline)")
+    p.add_argument("--learn", action="store_true", help="learn the compensation online with PI² (saved to --patient's file)")
+    p.add_argument("--patient", metavar="NAME", help="walk with (and, learning, update) this patient's learned parameters")
+    p.add_argument("--patients-dir", metavar="DIR", help="folder of the patient files (default: controller.patients_dir)")
+    p.add_argument("--max-time", type=positive_float, metavar="S", help="simulated seconds before the walk counts as stalled")
+    p.add_argument("--render", metavar="DIR", type=Path, help="in-process only: write a PNG strip and a GIF of the walk to DIR")
+    p.add_argument("--log", metavar="FILE", help="the controller's per-tick telemetry as JSON lines")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    p.add_argument("--quiet", action="store_true", help="no status line")
+    p.set_defaults(func=run)
+
+
+class StatusLine:
+    """The walk's live one-line status on stderr: rewritten in place on a terminal, otherwise a
+    line every simulated second and at every step."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled
+        self.tty = sys.stderr.isatty()
+        self.last_s = -math.inf
+        self.steps = 0
+
+    def __call__(self, result: Any, core: Any) -> None:
+        if not self.enabled:
+            return
+        t = result.tick * 0.02
+        new_step = len(core.steps) != self.steps
+        if not (self.tty or new_step or t - self.last_s >= 1.0):
+            return
+        self.steps, self.last_s = len(core.steps), t
+        m, est = core.measurements, result.estimate
+        step = core.steps[-1] if core.steps else None
+        text = f"walk {t:6.1f} s | {result.state.name:<14}"
+        if step is not None:
+            text += f" | step {step.index + 1} ({step.leg}) {step.length_m:.3f} m"
+        if m is not None:
+            text += f" | sticks {m.stick_force_n[0]:4.0f} {m.stick_force_n[1]:4.0f} N"
+        if est is not None and math.isfinite(est.x_ratio):
+            text += f" | X_CoM/X_SP {est.x_ratio:.2f}"
+        if self.tty:
+            print("\r" + text.ljust(100), end="", file=sys.stderr, flush=True)
+        else:
+            print(text, file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.enabled and self.tty:
+            print(file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    from config import ConfigError
+    from controller.factory import step_policy
+    from controller.telemetry import TelemetryLog
+    from tools.pipeline import walk
+
+    cfg = load_cli_config(args)
+    if cfg.controller is None or cfg.sim is None or cfg.nodes is None:
+        raise ConfigError("walking in simulation needs the controller, sim and nodes sections", key="controller")
+    socketcan = cfg.bus.interface == "socketcan"
+    if socketcan and args.render:
+        raise ConfigError("--render needs the simulation in this process (no --bus socketcan)", key="bus.interface")
+    policy, saver = step_policy(cfg.controller, fixed_m=args.fixed_step, learn=args.learn, patient=args.patient,
+                                patients_dir=args.patients_dir)
+    status = StatusLine(not args.quiet)
+    telemetry = TelemetryLog(args.log) if args.log else None
+    recorder = camera = None
+    if args.render:
+        from sim.render import Camera, Recorder
+
+        camera = Camera(target_xyz=(0.3, 0.0, 0.7), distance_m=2.8, yaw_deg=20.0, pitch_deg=-10.0, width_px=320, height_px=240)
+        recorder = Recorder(every_n=5)
+    nodes_report: dict[str, Any] | None = None
+    try:
+        if socketcan:
+            outcome, nodes_report = _walk_two_processes(args, cfg, policy, status, telemetry)
+        else:
+            def on_tick(result: Any, core: Any, host: Any) -> None:
+                status(result, core)
+                if recorder is not None:
+                    x = float(host.world.link_frame("trunk")[0][0])
+                    recorder.maybe_capture(host.world.client, host.patient.t, camera.follow(x))
+
+            outcome = walk(cfg, cycles=args.steps, seed=args.seed, mode=args.mode, policy=policy,
+                           max_time_s=args.max_time, on_tick=on_tick, telemetry=telemetry)
+    finally:
+        status.close()
+        log_report = telemetry.close() if telemetry is not None else None
+        if saver is not None:
+            saver.close()
+    summary = outcome.summary()
+    summary["cycles_asked"] = args.steps
+    summary["bus"] = f"{cfg.bus.interface}:{cfg.bus.channel}" if socketcan else "virtual (in-process)"
+    summary["telemetry"] = log_report
+    if saver is not None:
+        summary["patient_file"] = {"path": str(saver.path), "writes": saver.writes, "errors": saver.errors}
+    if nodes_report is not None:
+        summary["nodes"] = nodes_report
+    if recorder is not None and len(recorder):
+        args.render.mkdir(parents=True, exist_ok=True)
+        summary["render"] = {
+            "strip": str(recorder.save_strip(args.render / f"walk-{args.mode}.png", 6)),
+            "gif": str(recorder.save_gif(args.render / f"walk-{args.mode}.gif")),
+            "frames": len(recorder),
+        }
+    if args.json:
+        print_json(summary)
+    else:
+        print(_summary_text(summary))
+    return 0
+
+
+def _summary_text(s: dict[str, Any]) -> str:
+    lengths = s["step_length_m"]
+    fall = f"fell: {s['fall_reason']}" if s["falls"] else ("no fall" + (" (stalled)" if s["stalled"] else ""))
+    text = (
+        f"{s['mode']} walk, {s['policy']} step length{'' if s['theta'] is None else ' theta ' + str(s['theta'])}, "
+        f"seed {s['seed']}: {s['cycles_completed']} of {s['cycles_asked']} gait cycles ({s['steps_completed']} steps), {fall}\n"
+        f"  step length {lengths['mean']} m (min {lengths['min']}, max {lengths['max']}), mean stick force "
+        f"{s['mean_stick_force_n']} N, X_CoM/X_SP error {s['x_ratio_mae']} (mean over {s['x_ratio_samples']} ticks)\n"
+        f"  {s['sim_time_s']} s simulated in {s['wall_time_s']} s, {s['ticks']} ticks on {s['bus']}; frames rejected "
+        f"{s['receiver'].get('rejected', 0)}, lost {s['receiver'].get('lost', 0)}"
+    )
+    if "render" in s:
+        text += f"\n  wrote {s['render']['strip']} and {s['render']['gif']}"
+    if s.get("patient_file"):
+        text += f"\n  patient file {s['patient_file']['path']} ({s['patient_file']['writes']} writes)"
+    return text
+
+
+def _walk_two_processes(args: argparse.Namespace, cfg: Any, policy: Any, status: StatusLine, telemetry: Any):
+    """The node boards as ``aider-exo nodes`` in a second process on the same SocketCAN channel."""
+    from config.loader import AiderError
+    from protocol.bus import open_bus
+    from tools.pipeline import walk_controller
+
+    exe = str(Path(sys.executable).with_name("aider-exo"))
+    with tempfile.TemporaryDirectory(prefix="aider-walk-") as tmp:
+        truth_path = Path(tmp) / "truth.jsonl"
+        cmd = [exe, "nodes", "--bus", "socketcan", "--channel", cfg.bus.channel, "--lockstep", "--mode", args.mode,
+               "--seed", str(args.seed), "--truth", str(truth_path), "--json", "--quiet"]
+        if args.config:
+            cmd[2:2] = ["--config", args.config]
+        estimates: dict[int, float] = {}
+
+        def on_tick(result: Any, core: Any) -> None:
+            status(result, core)
+            if result.estimate is not None:
+                estimates[result.tick] = result.estimate.x_ratio
+
+        nodes = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            with StopSignals():
+                bus = open_bus(cfg.bus)
+                try:
+                    outcome = walk_controller(cfg, bus, cycles=args.steps, seed=args.seed, mode=args.mode, policy=policy,
+                                              max_time_s=args.max_time, on_tick=on_tick, telemetry=telemetry)
+                finally:
+                    bus.shutdown()
+        finally:
+            if nodes.poll() is None:
+                nodes.send_signal(signal.SIGTERM)
+            try:
+                out, err = nodes.communicate(timeout=30)
+            except subprocess.TimeoutExpired:
+                nodes.kill()
+                out, err = nodes.communicate()
+        if nodes.returncode != 0:
+            raise AiderError(f"the nodes process exited with {nodes.returncode}: {err.strip().splitlines()[-1:] or ''}")
+        try:
+            report = json.loads(out)
+        except ValueError:
+            raise AiderError("the nodes process printed no JSON report") from None
+        for line in truth_path.read_text().splitlines():
+            row = json.loads(line)
+            est = estimates.get(row["tick"])
+            if est is not None and math.isfinite(est) and row["x_ratio"] is not None and math.isfinite(row["x_ratio"]):
+                outcome.ratio_errors.append(abs(est - row["x_ratio"]))
+            if row["fall"] and not outcome.fell:
+                outcome.fell, outcome.fall_reason = True, row["fall"]
+    outcome.sim_time_s = report.get("sim_time_s", outcome.sim_time_s)
+    return outcome, {"pid": nodes.pid, "syncs": report.get("syncs"), "receiver": report.get("receiver"), "fall": report.get("fall")}
