@@ -31,15 +31,10 @@ system-deps:
 		echo "warning: missing$$missing; install user-mode-linux kmod can-utils (as root) or the vcan tests will be skipped"; \
 	fi
 
-# The main job, for now: the CAN protocol and a full bus check over vcan0 between two processes,
-# recorded by candump (can-utils) and decoded again. Later issues make this the walking demo.
+# The main job: the main controller walks the simulated HHEA through the four emulated node boards,
+# every value a CAN frame, in lock-step; the walk is rendered to build/walk (PNG strip and GIF).
 demo: venv system-deps
-	$(AIDER) protocol
-	@mkdir -p build
-	tools/vcan-run -- sh -c 'if [ -n "$$AIDER_VCAN_UNAVAILABLE" ]; then \
-		echo "no vcan0 here: running the bus check on the in-process virtual bus instead"; \
-		exec $(AIDER) buscheck --ticks 250; \
-	else exec $(AIDER) buscheck --bus socketcan --channel vcan0 --ticks 250 --candump build/demo-candump.log; fi'
+	$(AIDER) walk --steps 10 --render build/walk
 
 test: venv system-deps
 	$(PY) -m pytest -m "not vcan"
