@@ -68,7 +68,8 @@ def step_policy(
         if learn:
             raise PatientError("a fixed step length cannot be learned: give --fixed-step or --learn, not both")
         return StepPolicy(bounds, fixed_m=fixed_m), None
-    record = load_patient(directory, patient) if patient else None
+    c = cfg.learning
+    record = load_patient(directory, patient, lower=(c.alpha_min, c.xhat_min), upper=(c.alpha_max, c.xhat_max)) if patient else None
     if not learn:
         theta = record.theta if record is not None else (cfg.compensation.alpha, cfg.compensation.xhat_com)
         return StepPolicy(bounds, theta=theta), None

@@ -136,7 +136,7 @@ class LockstepLoop:
             "trunk_rpy_rad": None if m is None else m.trunk_rpy_rad,
             "com_m": None if est is None else est.com,
             "x_ratio": None if est is None else est.x_ratio,
-            "gait": self.core.gait_part if self.core.fsm.moving else None,
+            "gait": (self.core.gait_part or None) if self.core.fsm.moving else None,  # "" before the first gait tick
             "step": None if step is None else step.index,
             "step_length_m": None if step is None else step.length_m,
             "step_cost_n": None if result.landed is None else result.landed.mean_stick_force_n,  # paper eq. (10), at landing

@@ -40,25 +40,32 @@ class PatientRecord:
 
 
 def patient_path(directory: str | os.PathLike[str], name: str) -> Path:
-    if not _NAME.match(name):
+    if not isinstance(name, str) or not _NAME.fullmatch(name):  # fullmatch: '$' would let a trailing newline through
         raise PatientError(f"patient name {name!r}: use 1-64 letters, digits, '_', '-' or '.', starting with a letter or digit")
     return Path(directory) / f"{name}.json"
 
 
-def load_patient(directory: str | os.PathLike[str], name: str) -> PatientRecord | None:
-    """The patient's record, or None if the patient has no file yet."""
+def load_patient(
+    directory: str | os.PathLike[str], name: str, *, lower: tuple[float, float] | None = None,
+    upper: tuple[float, float] | None = None,
+) -> PatientRecord | None:
+    """The patient's record, or None if the patient has no file yet; ``lower``/``upper``: the
+    bounds of theta = (alpha, Xhat_CoM) (``controller.learning``), a theta outside them an error."""
     path = patient_path(directory, name)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         return None
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deep
         raise PatientError(f"{path}: cannot read the patient file ({exc})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT or data.get("version") != VERSION:
         raise PatientError(f"{path}: not an {FORMAT!r} file of version {VERSION}")
     theta = data.get("theta")
-    if not (isinstance(theta, list) and len(theta) == 2 and all(isinstance(v, (int, float)) and math.isfinite(v) for v in theta)):
+    if not (isinstance(theta, list) and len(theta) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in theta)):
         raise PatientError(f"{path}: theta must be two finite numbers (alpha, Xhat_CoM), got {theta!r}")
+    if lower is not None and upper is not None and not all(lo <= v <= hi for v, lo, hi in zip(theta, lower, upper)):
+        raise PatientError(f"{path}: theta {theta} outside the bounds {list(lower)} .. {list(upper)} (controller.learning)")
     learner = data.get("learner")
     if learner is not None and not isinstance(learner, dict):
         raise PatientError(f"{path}: learner must be an object or null")

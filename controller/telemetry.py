@@ -17,6 +17,8 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from config.loader import AiderError
+
 SCHEMA_VERSION = 2
 
 #: field -> (unit, meaning); every record has exactly these fields
@@ -42,6 +44,10 @@ FIELDS: dict[str, tuple[str, str]] = {
 }
 
 
+class TelemetryError(AiderError):
+    """A telemetry log that cannot be created (one line, naming the file)."""
+
+
 def _clean(value: Any) -> Any:
     """JSON-safe: numpy to lists, non-finite floats to null."""
     if hasattr(value, "tolist"):
@@ -64,10 +70,13 @@ class TelemetryLog:
         self.written = 0
         self.dropped = 0
         self.error: str | None = None
-        self._file = self.path.open("w", encoding="utf-8")
         schema = {"schema": "aider-exo controller telemetry", "version": SCHEMA_VERSION,
                   "fields": {k: {"unit": u, "meaning": m} for k, (u, m) in FIELDS.items()}}
-        self._file.write(json.dumps(schema) + "\n")
+        try:
+            self._file = self.path.open("w", encoding="utf-8")
+            self._file.write(json.dumps(schema) + "\n")
+        except OSError as exc:  # a bad --log path is the user's error, not a traceback
+            raise TelemetryError(f"{self.path}: cannot write the telemetry log ({exc.strerror or exc})") from None
         self._thread = threading.Thread(target=self._run, name="telemetry", daemon=True)
         self._thread.start()
 

@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     policy, saver = step_policy(cfg.controller, fixed_m=args.fixed_step, learn=args.learn, patient=args.patient,
                                 patients_dir=args.patients_dir)
     status = StatusLine(not args.quiet)
-    telemetry = TelemetryLog(args.log) if args.log else None
+    telemetry = None
     recorder = camera = None
     if args.render:
         from sim.render import Camera, Recorder
@@ -108,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
         recorder = Recorder(every_n=5)
     nodes_report: dict[str, Any] | None = None
     try:
+        telemetry = TelemetryLog(args.log) if args.log else None  # in the try: the saver is closed if it fails
         if socketcan:
             outcome, nodes_report = _walk_two_processes(args, cfg, policy, status, telemetry)
         else:
