@@ -1,0 +1,268 @@
+"""Pure unit tests of controller/gait.py on synthetic estimates: the stick-move detection
+(StickTracker) and the stance legs' commands in double support (GaitPlanner). Only the design's
+promises (the module and docs/CONTROLLER.md) are asserted, with every threshold taken from the
+configuration, so that the tests survive gait tuning."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from config import default_config_path, load_config
+from controller import factory
+from controller import kinematics as kin
+from controller.dmp import Dmp
+from controller.estimator import Estimate, Measurements
+from controller.gait import LEFT, RIGHT, GaitPlanner, StickTracker
+from controller.swing import load_swing
+
+CFG = load_config(default_config_path()).controller
+P = CFG.gait
+DT = 0.02
+LEG = factory.leg(CFG)
+LOADED_N = max(P.stick_placed_n, P.swing_stick_n, P.stick_lifted_n) + 40.0  # a stick clearly carrying load
+FOOT_N = P.foot_contact_n + 300.0
+
+
+def estimate(ankles_x=(-0.06, 0.06), ankles_z=(-0.84, -0.84), com_x=0.0, tips_x=(0.35, 0.35)) -> Estimate:
+    """A standing estimate in the heading frame (hips at the origin)."""
+    ankles = np.array([[ankles_x[0], 0.10, ankles_z[0]], [ankles_x[1], -0.10, ankles_z[1]]])
+    tips = np.array([[tips_x[0], 0.25, -0.90], [tips_x[1], -0.25, -0.90]])
+    return Estimate(com=np.array([com_x, 0.0, 0.10]), ankles=ankles, tips=tips, feet_loaded=(True, True),
+                    sticks_loaded=(True, True), floor_z=-0.90, support=np.zeros((0, 2)), x_ratio=math.nan,
+                    elbow_rad=(1.0, 1.0), tips_on_floor=(True, True))
+
+
+def joints_for(est: Estimate, pitch: float = 0.0) -> np.ndarray:
+    q = []
+    for i in (LEFT, RIGHT):
+        hip, knee = kin.inverse(LEG, float(est.ankles[i][0]), float(est.ankles[i][2]))
+        q += [hip + pitch, knee]
+    return np.array(q)
+
+
+def measurements(est: Estimate, sticks=(LOADED_N, LOADED_N), feet=(FOOT_N, FOOT_N), q=None, pitch: float = 0.0) -> Measurements:
+    return Measurements(
+        joint_position_rad=joints_for(est, pitch) if q is None else np.asarray(q, dtype=float),
+        trunk_rpy_rad=np.array([0.0, pitch, 0.0]),
+        stick_rpy_rad=np.zeros((2, 3)),
+        stick_force_n=np.asarray(sticks, dtype=float),
+        heel_force_n=np.asarray(feet, dtype=float) / 2,
+        toe_force_n=np.asarray(feet, dtype=float) / 2,
+    )
+
+
+def ticks_for(seconds: float) -> int:
+    return math.ceil(seconds / DT - 1e-9)
+
+
+# Generous bounds on how long the force filter takes to settle (never a tight timing assertion).
+SETTLE = ticks_for(10 * P.stick_filter_s) + 2
+LIFT = ticks_for(P.stick_lift_s) + SETTLE + 2
+
+
+def feed(tracker: StickTracker, est: Estimate, sticks, n: int) -> None:
+    m = measurements(est, sticks=sticks)
+    for _ in range(n):
+        tracker.update(est, m)
+
+
+# -- StickTracker --------------------------------------------------------------------------------
+
+
+def test_a_stick_has_moved_once_lifted_long_enough_and_planted_farther_forward():
+    t = StickTracker(P, DT)
+    start = estimate()
+    t.reset(start, LEFT)
+    feed(t, start, (LOADED_N, LOADED_N), 50)
+    assert t.moved == [False, False] and t.lifted == [False, False]
+    lifted_after = None
+    for k in range(1, LIFT + 1):
+        feed(t, start, (0.0, LOADED_N), 1)
+        if t.lifted[LEFT]:
+            lifted_after = k
+            break
+    assert lifted_after is not None and lifted_after * DT >= P.stick_lift_s - 1e-9  # not before stick_lift_s
+    assert t.lifted == [True, False] and t.moved == [False, False]  # lifted is not moved
+    ahead = estimate(tips_x=(0.35 + P.stick_moved_m + 0.02, 0.35))
+    feed(t, ahead, (LOADED_N, LOADED_N), SETTLE)
+    assert t.moved == [True, False]
+
+
+def test_a_stick_planted_back_where_it_stood_has_not_moved():
+    t = StickTracker(P, DT)
+    start = estimate()
+    t.reset(start, LEFT)
+    feed(t, start, (0.0, 0.0), LIFT)
+    assert t.lifted == [True, True]
+    behind = estimate(tips_x=(0.35, 0.35 - 0.05))
+    feed(t, behind, (LOADED_N, LOADED_N), 3 * SETTLE)
+    assert t.moved == [False, False]
+
+
+def test_a_lift_shorter_than_stick_lift_s_does_not_count():
+    t = StickTracker(P, DT)
+    start = estimate()
+    t.reset(start, LEFT)
+    feed(t, start, (LOADED_N, LOADED_N), 20)
+    feed(t, start, (0.0, 0.0), max(1, ticks_for(P.stick_lift_s / 2)))  # e.g. sensor noise on a light stick
+    ahead = estimate(tips_x=(0.45 + P.stick_moved_m, 0.45 + P.stick_moved_m))
+    feed(t, ahead, (LOADED_N, LOADED_N), 3 * SETTLE)
+    assert t.lifted == [False, False] and t.moved == [False, False]
+
+
+def test_the_advance_is_measured_from_the_planted_reference_foot():
+    """The heading frame moves with the hips: a stick re-planted ahead of where it stood over the
+    floor counts, even if the hips moved farther and its tip is behind its old place in the frame;
+    one re-planted at its old place over the floor does not."""
+    advance = P.stick_moved_m + 0.02
+    shift = advance + 0.03  # the hips moved forward more than the tip
+    for planted_ahead, expect in ((advance, True), (0.0, False)):
+        t = StickTracker(P, DT)
+        start = estimate()
+        t.reset(start, RIGHT)
+        feed(t, start, (0.0, LOADED_N), LIFT)
+        later = estimate(ankles_x=(-0.06 - shift, 0.06 - shift), tips_x=(0.35 - shift + planted_ahead, 0.35 - shift))
+        feed(t, later, (LOADED_N, LOADED_N), SETTLE)
+        assert later.tips[LEFT][0] < start.tips[LEFT][0]  # behind its old place in the frame
+        assert t.moved == [expect, False]
+
+
+def test_reset_starts_a_new_cycle():
+    t = StickTracker(P, DT)
+    start = estimate()
+    t.reset(start, LEFT)
+    feed(t, start, (0.0, 0.0), LIFT)
+    ahead = estimate(tips_x=(0.50, 0.50))
+    feed(t, ahead, (LOADED_N, LOADED_N), SETTLE)
+    assert t.moved == [True, True]
+    t.reset(ahead, RIGHT)  # a landing: the sticks must move again, measured from here
+    assert t.moved == [False, False] and t.lifted == [False, False] and t.ref_leg == RIGHT
+    feed(t, ahead, (LOADED_N, LOADED_N), SETTLE)
+    assert t.moved == [False, False] and not t.any_lifted_now
+
+
+# -- GaitPlanner: the stance legs in double support ----------------------------------------------
+
+
+def planner(est: Estimate, m: Measurements) -> GaitPlanner:
+    g = GaitPlanner(LEG, Dmp(load_swing(CFG)), P, dt_s=DT, substeps=CFG.swing.substeps)
+    g.stand_here(est, m)
+    return g
+
+
+def mid_lead(g: GaitPlanner, est: Estimate) -> float:
+    """How far the commanded ankles' midpoint lies behind the measured one (the hips' lead)."""
+    return float(np.mean(est.ankles[:, 0]) - np.mean(g.ankle_cmd[:, 0]))
+
+
+def test_before_the_sticks_moved_double_support_is_the_weight_shift_and_not_ready():
+    est = estimate()
+    g = planner(est, measurements(est))
+    for _ in range(20):
+        ds = g.double_support(est, measurements(est), RIGHT)
+        assert not ds.ready and ds.part == "shift" and math.isnan(ds.lean_goal_x)
+
+
+def test_the_stance_ankles_are_commanded_level_at_the_measured_spacing():
+    est = estimate(ankles_x=(-0.08, 0.05), ankles_z=(-0.842, -0.836), com_x=-0.01)
+    m = measurements(est)
+    g = planner(est, m)
+    for _ in range(5):
+        g.double_support(est, m, RIGHT)
+        assert g.ankle_cmd[LEFT][1] == g.ankle_cmd[RIGHT][1]  # the floor is flat: no height between the two
+        assert g.ankle_cmd[RIGHT][0] - g.ankle_cmd[LEFT][0] == pytest.approx(0.13)  # the feet where they are
+        assert -g.ankle_cmd[LEFT][1] <= g.stand_height_m + 1e-12
+
+
+def test_a_foot_that_carries_nothing_keeps_the_last_loaded_spacing():
+    est = estimate(ankles_x=(-0.06, 0.06))
+    g = planner(est, measurements(est))
+    g.double_support(est, measurements(est), RIGHT)
+    drifted = estimate(ankles_x=(-0.06 - 0.03, 0.06))  # the unloaded left foot's measurement drifts
+    g.double_support(drifted, measurements(drifted, feet=(0.0, FOOT_N)), RIGHT)
+    assert g.ankle_cmd[RIGHT][0] - g.ankle_cmd[LEFT][0] == pytest.approx(0.12)
+    g.double_support(drifted, measurements(drifted), RIGHT)  # loaded again: the measured spacing
+    assert g.ankle_cmd[RIGHT][0] - g.ankle_cmd[LEFT][0] == pytest.approx(0.15)
+
+
+@pytest.mark.parametrize("com_x, direction", [(-0.20, 1.0), (0.25, -1.0), (0.0, 0.0)])
+def test_the_shift_carries_the_com_toward_the_band_inside_the_ankles(com_x, direction):
+    est = estimate(ankles_x=(-0.06, 0.06), com_x=com_x)
+    g = planner(est, measurements(est))
+    g.double_support(est, measurements(est), RIGHT)
+    lead = mid_lead(g, est)
+    if direction == 0.0:
+        assert lead == pytest.approx(0.0, abs=1e-12)  # the CoM inside the band: the hips stay
+    else:
+        assert np.sign(lead) == direction  # hips forward (ankles commanded back) for a CoM behind it
+
+
+def test_a_body_that_does_not_follow_cannot_wind_the_command_up():
+    est = estimate(ankles_x=(-0.06, 0.06), com_x=-0.30)  # the shift wants the hips far forward ...
+    m = measurements(est)
+    g = planner(est, m)
+    leads = []
+    for _ in range(200):  # ... and the body never moves
+        g.double_support(est, m, RIGHT)
+        leads.append(mid_lead(g, est))
+    assert max(leads) <= P.max_lead_m + 1e-12
+    assert leads[-1] == pytest.approx(P.max_lead_m)  # it leads, by at most max_lead
+
+
+def test_the_shift_holds_while_a_stick_is_in_the_air():
+    est = estimate(ankles_x=(-0.06, 0.06), com_x=-0.20)
+    g = planner(est, measurements(est))
+    lifted = measurements(est, sticks=(0.0, LOADED_N))
+    for _ in range(SETTLE):
+        g.track_sticks(est, lifted)
+    assert g.sticks.any_lifted_now
+    for _ in range(10):
+        g.double_support(est, lifted, RIGHT)
+        assert mid_lead(g, est) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_joint_targets_move_at_most_max_target_step_per_tick_toward_the_commanded_ankles():
+    est = estimate(ankles_x=(-0.06, 0.06))
+    off = joints_for(est) + np.array([0.3, -0.25, -0.3, 0.35])  # measured far from the commanded posture
+    m = measurements(est, q=np.clip(off, 0.0, None))
+    g = planner(est, m)
+    previous = g.targets.copy()
+    errors = []
+    for _ in range(40):
+        g.double_support(est, m, RIGHT)
+        assert np.all(np.abs(g.targets - previous) <= P.max_target_step_rad + 1e-12)
+        previous = g.targets.copy()
+        want = np.array([v for i in (LEFT, RIGHT) for v in kin.inverse(LEG, *map(float, g.ankle_cmd[i]))])
+        want[[0, 2]] += g.pitch_goal_rad
+        errors.append(float(np.max(np.abs(g.targets - want))))
+    assert errors[-1] < 1e-6 < errors[0]  # rate-limited, yet it gets there
+
+
+def test_the_stance_hips_targets_add_the_trunks_pitch_goal():
+    pitch = 0.08
+    est = estimate(ankles_x=(-0.06, 0.06))
+    m = measurements(est, pitch=pitch)
+    g = planner(est, m)
+    assert g.pitch_goal_rad == pytest.approx(pitch)
+    for _ in range(5):
+        g.double_support(est, m, RIGHT)
+    for i in (LEFT, RIGHT):
+        hip, knee = kin.inverse(LEG, *map(float, g.ankle_cmd[i]))
+        assert g.targets[2 * i] == pytest.approx(hip + pitch) and g.targets[2 * i + 1] == pytest.approx(knee)
+
+
+def test_with_both_sticks_moved_double_support_leans_toward_the_patients_goal():
+    est = estimate(ankles_x=(-0.06, 0.06), com_x=0.0, tips_x=(0.35, 0.35))
+    g = planner(est, measurements(est))
+    for _ in range(LIFT):
+        g.track_sticks(est, measurements(est, sticks=(0.0, 0.0)))
+    ahead = estimate(ankles_x=(-0.06, 0.06), com_x=0.0, tips_x=(0.42, 0.46))
+    for _ in range(SETTLE):
+        g.track_sticks(ahead, measurements(ahead))
+    assert g.sticks.moved == [True, True]
+    ds = g.double_support(ahead, measurements(ahead), RIGHT)
+    assert ds.part == "lean" and ds.lean_goal_x == pytest.approx(0.44 - P.lean_behind_tips_m)
+    assert mid_lead(g, ahead) > 0.0  # the CoM behind the goal: the hips go forward
