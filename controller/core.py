@@ -193,12 +193,15 @@ class ControllerCore:
         # The gait of the state the FSM is in: whether the step is ready, whether the swing is done.
         before = self.fsm.state
         ready = done = landed = False
+        sticks_loaded = bool(estimate and all(estimate.sticks_loaded))
         if estimate is not None and fresh and before in (GaitState.DOUBLE_SUPPORT, *SWINGS):
             self.gait.track_sticks(estimate, measurements)
             self._step.add(measurements.stick_force_n)
             if before == GaitState.DOUBLE_SUPPORT:
                 ds = self.gait.double_support(estimate, measurements, _leg_index(self.fsm.next_swing))
-                ready, self.gait_part = ds.ready, ds.part
+                # a step starts on sticks planted and leant on (the gait's swing_stick_n), which a
+                # trailing foot propping the body on its toe leaves below the support polygon's threshold
+                ready, self.gait_part, sticks_loaded = ds.ready, ds.part, ds.sticks_loaded
             else:
                 self.gait_part = "swing"
                 swing = self.gait.swing(estimate, measurements)
@@ -207,7 +210,7 @@ class ControllerCore:
             nodes_operational=operational,
             nodes_healthy=healthy,
             data_fresh=fresh,
-            sticks_loaded=bool(estimate and all(estimate.sticks_loaded)),
+            sticks_loaded=sticks_loaded,
             sticks_ahead=ready,
             swing_done=done,
             fault=self.pending_faults[0] if self.pending_faults else None,
@@ -259,14 +262,14 @@ class ControllerCore:
             self.gait.stand_here(est, m)
             self._step = StepRecord(index=len(self.steps), leg="", start_tick=tick)
         if state in SWINGS and before == GaitState.DOUBLE_SUPPORT:
-            goal, theta = self.policy.goal(est.x_ratio)
+            goal, theta = self.policy.goal(est.x_ratio_planted)
             leg = _leg_index(state)
             self.gait.start_swing(leg, est, goal.length_m)
             step = self._step
-            step.leg, step.swing_tick, step.x_ratio, step.theta = "lr"[leg], tick, float(est.x_ratio), theta
+            step.leg, step.swing_tick, step.x_ratio, step.theta = "lr"[leg], tick, float(est.x_ratio_planted), theta
             step.length_m, step.requested_m, step.clamped = goal.length_m, goal.requested_m, goal.clamped
             self.steps.append(step)
-            events.append(f"step {step.index} ({step.leg}): {goal.length_m:.3f} m at X_CoM/X_SP {est.x_ratio:.2f}"
+            events.append(f"step {step.index} ({step.leg}): {goal.length_m:.3f} m at X_CoM/X_SP {est.x_ratio_planted:.2f}"
                           + (f" (clamped: {goal.reason})" if goal.clamped else ""))
         return finished
 

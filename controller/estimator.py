@@ -14,7 +14,11 @@ trunk's heading (its yaw removed), so the ratio needs no global position. Per ti
   inside the elbow's range, the one nearer the last tick's when both are);
 * the support polygon is the pivot polygon of the loaded contacts (a passive ankle is a pin: its
   pivot, widened by half the sole across the heading, and the loaded tips), as the simulation's
-  ground truth defines it; X_CoM/X_SP is the CoM's place between its rear and front extent.
+  ground truth defines it; X_CoM/X_SP is the CoM's place between its rear and front extent;
+* ``x_ratio_planted``, the same between the rear-most and front-most of both ankles and both tips
+  whatever they carry: the step-length compensation's input at a swing's start, when all four are
+  on the floor (the loaded support flips as a stick's load crosses its threshold, and with it the
+  ratio, by up to 1).
 """
 
 from __future__ import annotations
@@ -60,7 +64,8 @@ class Estimate:
     sticks_loaded: tuple[bool, bool]
     floor_z: float  # the floor below the hip midpoint
     support: np.ndarray  # (k, 2) pivot polygon vertices of the loaded contacts
-    x_ratio: float  # X_CoM / X_SP (nan without a support extent)
+    x_ratio: float  # X_CoM / X_SP over the loaded contacts (nan without a support extent)
+    x_ratio_planted: float  # X_CoM / X_SP between the rear-most and front-most of both feet and both stick tips
     elbow_rad: tuple[float, float]
     tips_on_floor: tuple[bool, bool]  # whether the elbow angle could put the tip on the floor
 
@@ -121,13 +126,18 @@ class StateEstimator:
         com = (weights[:, None] * np.asarray(points)).sum(axis=0) / weights.sum()
 
         support = self._pivot_polygon(ankles, tips, feet_loaded, sticks_loaded)
-        ratio = math.nan  # a support shorter than min_support_m fore-aft says nothing fore-aft
-        if len(support):
-            rear, front = float(support[:, 0].min()), float(support[:, 0].max())
-            if front - rear >= b.min_support_m:
-                ratio = (float(com[0]) - rear) / (front - rear)
-        return Estimate(com, ankles, tips, feet_loaded, sticks_loaded, floor_z, support, ratio,
+        planted = np.concatenate([ankles[:, 0], tips[:, 0]])
+        return Estimate(com, ankles, tips, feet_loaded, sticks_loaded, floor_z, support,
+                        self._fore_aft_ratio(float(com[0]), support[:, 0]), self._fore_aft_ratio(float(com[0]), planted),
                         (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]))
+
+    def _fore_aft_ratio(self, com_x: float, xs: np.ndarray) -> float:
+        """The CoM's place between the rear-most and the front-most of ``xs``; nan for a support
+        shorter than ``min_support_m`` fore-aft, which says nothing fore-aft."""
+        if not len(xs):
+            return math.nan
+        rear, front = float(xs.min()), float(xs.max())
+        return (com_x - rear) / (front - rear) if front - rear >= self.body.min_support_m else math.nan
 
     def _elbow_angle(self, i: int, a: float, b: float, c: float) -> tuple[float, bool]:
         lo, hi = self.body.elbow_min_rad, self.body.elbow_max_rad

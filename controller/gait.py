@@ -12,15 +12,17 @@ sticks hold it. One gait cycle, per leg (docs/CONTROLLER.md):
    while a stick is in the air. A stick has moved once it was off the floor (filtered force below
    ``stick_lifted_n`` for ``stick_lift_s``) and was planted again (above ``stick_placed_n``) at
    least ``stick_moved_m`` farther forward than it stood at the last landing.
-2. **Double support, lean.** With both sticks moved, the legs carry the CoM toward the patient's
-   lean goal, ``lean_behind_tips`` behind the mean stick tip (at ``lean_speed``), pausing while a
-   stick carries ``comfort_stick_n``, and on past it by up to ``lean_past_goal`` while the sticks
-   carry less than ``swing_stick_n`` (a trailing foot at its ankle's stop props the body on its
-   toe and keeps the sticks light). The step is ready when both sticks carry ``swing_stick_n``,
-   stand ``tips_ahead`` ahead of the front ankle, and the lean is over: the CoM at its goal, or no
-   farther forward by ``lean_stall_m`` for ``lean_stall_s`` (a trailing leg at full reach). No
-   check of where the CoM is against the stance foot: that is the step length's job (the CoM
-   compensation of the paper's equation (8)); a step too long for the patient's lean falls.
+2. **Double support, lean.** With both sticks moved, the legs carry the CoM forward (at
+   ``lean_speed``, pausing while a stick carries ``comfort_stick_n``) until the swing foot is free
+   (below ``foot_free_n`` for ``foot_free_s``): a trailing foot at its ankle's stop
+   props the body on its toe, farther ahead the shorter the step, so a short step needs a lean
+   farther onto the sticks. The patient lets the lean go at most ``lean_past_goal`` past its own
+   goal, ``lean_behind_tips`` behind the mean stick tip (where it placed the sticks is its
+   intention). The step is ready when both sticks carry ``swing_stick_n``, stand ``tips_ahead``
+   ahead of the front ankle, and the lean is over: the swing foot free, the CoM at the patient's
+   limit, or no farther forward by ``lean_stall_m`` for ``lean_stall_s``. No check of where the CoM
+   is against the stance foot: that is the step length's job (the CoM compensation of the paper's
+   equation (8)); a step too long for the patient's lean falls.
 3. **Swing.** The swing ankle follows the DMP in the stance foot's frame, from where it is to
    the step length ahead of the stance ankle and ``landing_depth`` below it. The stance leg holds
    the hips' height and the trunk's pitch and lets the body turn about its ankle as the patient's
@@ -59,6 +61,7 @@ class DoubleSupport:
     ready: bool
     part: str
     lean_goal_x: float  # m, heading frame (nan in the shift)
+    sticks_loaded: bool  # both (filtered) stick forces above swing_stick_n: planted and leant on
 
 
 @dataclass(frozen=True)
@@ -75,6 +78,7 @@ class StickTracker:
     params: GaitConfig
     dt_s: float
     force_n: np.ndarray = field(default_factory=lambda: np.zeros(2))  # filtered
+    raw_n: np.ndarray = field(default_factory=lambda: np.zeros(2))  # this tick's
     unloaded_s: np.ndarray = field(default_factory=lambda: np.zeros(2))
     lifted: list[bool] = field(default_factory=lambda: [False, False])
     moved: list[bool] = field(default_factory=lambda: [False, False])
@@ -93,7 +97,8 @@ class StickTracker:
     def update(self, est: Estimate, m: Measurements) -> None:
         p = self.params
         a = min(1.0, self.dt_s / p.stick_filter_s) if p.stick_filter_s > 0 else 1.0
-        self.force_n += a * (np.asarray(m.stick_force_n, dtype=float) - self.force_n)
+        self.raw_n = np.asarray(m.stick_force_n, dtype=float)
+        self.force_n += a * (self.raw_n - self.force_n)
         advance = est.tips[:, 0] - est.ankles[self.ref_leg][0] - self.ref_x
         for i in LEGS:
             off = self.force_n[i] < p.stick_lifted_n
@@ -102,6 +107,12 @@ class StickTracker:
                 self.lifted[i] = True
             if self.lifted[i] and self.force_n[i] > p.stick_placed_n and advance[i] >= p.stick_moved_m:
                 self.moved[i] = True
+
+    @property
+    def loaded(self) -> bool:
+        """Both sticks planted and leant on: their force above ``swing_stick_n``, filtered and now."""
+        n = self.params.swing_stick_n
+        return bool(np.all(self.force_n > n) and np.all(self.raw_n > n))
 
     @property
     def any_lifted_now(self) -> bool:
@@ -132,6 +143,7 @@ class GaitPlanner:
         self.step_length_m = math.nan
         self._lean_best_x = -math.inf  # the farthest the CoM got in this lean, and how long since
         self._lean_still_s = 0.0
+        self._foot_free_s = 0.0  # how long the next swing's foot has been unloaded
 
     # -- set-up ----------------------------------------------------------------------------------
 
@@ -150,6 +162,7 @@ class GaitPlanner:
         self.sticks.reset(est, ref_leg)
         self.feet_spacing_m = float(est.ankles[RIGHT][0] - est.ankles[LEFT][0])
         self._lean_best_x, self._lean_still_s = -math.inf, 0.0
+        self._foot_free_s = 0.0
 
     def track_sticks(self, est: Estimate, m: Measurements) -> None:
         """Every walking tick: the stick moves since the last landing."""
@@ -222,13 +235,16 @@ class GaitPlanner:
         if not all(self.sticks.moved):
             self._stance(LEGS, est, m, self._shift(est))
             self._solve(m)
-            return DoubleSupport(False, "shift", math.nan)
+            return DoubleSupport(False, "shift", math.nan, self.sticks.loaded)
         goal = float(np.mean(est.tips[:, 0])) - p.lean_behind_tips_m
         comfortable = float(np.max(m.stick_force_n)) < p.comfort_stick_n
-        loaded = bool(np.all(self.sticks.force_n > p.swing_stick_n))
-        # At its goal with the sticks still light (the trailing foot props the body on its toe),
-        # the lean goes on, up to ``lean_past_goal``, until the patient leans onto the sticks.
-        reach = goal if loaded else goal + p.lean_past_goal_m
+        # The lean goes on until the swing foot is free: a trailing foot at its ankle's stop props
+        # the body on its toe, farther ahead the shorter the step, so a short step needs a lean
+        # farther onto the sticks. The patient lets it go at most ``lean_past_goal`` past its goal.
+        unloaded = float(m.heel_force_n[swing_leg] + m.toe_force_n[swing_leg]) < p.foot_free_n
+        self._foot_free_s = self._foot_free_s + self.dt_s if unloaded else 0.0
+        free = self._foot_free_s >= p.foot_free_s
+        reach = com_x if free else goal + p.lean_past_goal_m
         dx = min(p.lean_speed_m_s * self.dt_s, max(reach - com_x, 0.0)) if comfortable else 0.0
         self._stance(LEGS, est, m, dx)
         self._solve(m)
@@ -237,9 +253,9 @@ class GaitPlanner:
             self._lean_best_x, self._lean_still_s = progress, 0.0
         else:
             self._lean_still_s += self.dt_s
-        over = com_x >= goal - p.lean_stall_m or self._lean_still_s >= p.lean_stall_s
+        over = free or com_x >= goal + p.lean_past_goal_m - p.lean_stall_m or self._lean_still_s >= p.lean_stall_s
         ahead = bool(np.all(est.tips[:, 0] > front + p.tips_ahead_m))
-        return DoubleSupport(over and ahead and loaded, "lean", goal)
+        return DoubleSupport(over and ahead and self.sticks.loaded, "lean", goal, self.sticks.loaded)
 
     def _shift(self, est: Estimate) -> float:
         """How far to carry the hips forward this tick in the weight shift (0 with a stick in the air)."""
