@@ -57,7 +57,8 @@ def step_policy(
 
     * ``fixed_m``: every step that long (the baseline without compensation);
     * ``learn``: online PI² from the patient's stored learner (or a new one at the configured
-      start), its file rewritten after every update when a ``patient`` is named;
+      start), its file rewritten after every roll-out when a ``patient`` is named (so a restart
+      loses no finished roll-out);
     * otherwise the compensation with the patient's learned theta, or the configured one.
     """
     from controller.patients import PatientError, PatientSaver, load_patient, patient_path, restore_learner
@@ -67,6 +68,8 @@ def step_policy(
     if fixed_m is not None:
         if learn:
             raise PatientError("a fixed step length cannot be learned: give --fixed-step or --learn, not both")
+        if patient:
+            raise PatientError(f"a fixed step length uses no learned parameters: --patient {patient} has no effect with --fixed-step")
         return StepPolicy(bounds, fixed_m=fixed_m), None
     c = cfg.learning
     record = load_patient(directory, patient, lower=(c.alpha_min, c.xhat_min), upper=(c.alpha_max, c.xhat_max)) if patient else None

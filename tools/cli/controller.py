@@ -69,6 +69,8 @@ def run(args: argparse.Namespace) -> int:
     # Everything that can be wrong with the configuration or a patient file fails here, before the bus opens.
     policy, saver = step_policy(cfg.controller, fixed_m=args.fixed_step, learn=args.learn, patient=args.patient,
                                 patients_dir=args.patients_dir)
+    if args.learn and not args.patient:
+        print("aider-exo controller: warning: learning without --patient: what is learnt is not kept", file=sys.stderr)
     core = ControllerCore(cfg.controller, policy=policy)
     notifier = Notifier()
     rt = None

@@ -85,6 +85,8 @@ class StatusLine:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from config import ConfigError
     from controller.factory import step_policy
     from controller.telemetry import TelemetryLog
@@ -96,8 +98,12 @@ def run(args: argparse.Namespace) -> int:
     socketcan = cfg.bus.interface == "socketcan"
     if socketcan and args.render:
         raise ConfigError("--render needs the simulation in this process (no --bus socketcan)", key="bus.interface")
+    # Exploration seeded from --seed (its own stream): a learning walk is as repeatable as any other.
+    rng = np.random.default_rng(np.random.SeedSequence([args.seed, 1]))
     policy, saver = step_policy(cfg.controller, fixed_m=args.fixed_step, learn=args.learn, patient=args.patient,
-                                patients_dir=args.patients_dir)
+                                patients_dir=args.patients_dir, rng=rng)
+    if args.learn and not args.patient:
+        print("aider-exo walk: warning: learning without --patient: what is learnt is not kept", file=sys.stderr)
     status = StatusLine(not args.quiet)
     telemetry = None
     recorder = camera = None
