@@ -29,13 +29,11 @@ from config.controller_schema import ControllerConfig
 from controller.dmp import Dmp, DmpWeights
 from controller.envelope import Envelope, JointBounds, JointCommand
 from controller.estimator import Estimate, Measurements, StateEstimator
-from controller.factory import leg as make_leg
-from controller.factory import step_bounds
+from controller.factory import leg as make_leg, step_bounds
 from controller.fsm import SWINGS, FsmInputs, GaitFsm
 from controller.gait import GaitPlanner
 from controller.policy import StepPolicy, StepRecord
-from protocol.catalog import TICK_MS
-from protocol.catalog import Catalog, default_catalog
+from protocol.catalog import TICK_MS, Catalog, default_catalog
 from protocol.codec import Decoded
 from protocol.enums import DriveState, GaitState, JointMode, NmtCommand, NmtState
 
@@ -283,7 +281,7 @@ class ControllerCore:
         sent = np.zeros(4)
         for i, (name, joint) in enumerate(zip(self.node_names, self.joint_names)):
             if moving:
-                cmd = JointCommand(JointMode.TRACK, float(self.gait.targets[i]), torque_nm=float(self.gait.torque_ff[i]),
+                cmd = JointCommand(JointMode.TRACK, float(self.gait.targets[i]),
                                    torque_limit_nm=self.cfg.envelope.max_torque_nm)
             else:
                 cmd = JointCommand(JointMode.HOLD, torque_limit_nm=self.hold_torque_nm)

@@ -137,7 +137,6 @@ class GaitPlanner:
         self.feet_spacing_m = math.nan  # right ankle less left ankle fore-aft, both planted
         self.pitch_goal_rad = 0.0
         self.targets = np.zeros(4)
-        self.torque_ff = np.zeros(4)
         self.swing_leg: int | None = None
         self.swing_t = 0.0
         self.step_length_m = math.nan
