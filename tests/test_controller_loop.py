@@ -108,16 +108,66 @@ def test_real_time_controller_and_real_time_nodes_hold_the_hhea_up(request):
     assert summary["ticks"] == 100 and summary["work"]["max_us"] > 0
 
 
+def test_real_time_controller_walks_two_gait_cycles_with_real_time_nodes():
+    """Walking in real time: the controller on absolute 20 ms deadlines, the nodes in a thread on
+    their own 20 ms physics timer, every value a frame on the in-process virtual bus (the vcan
+    sandbox cannot run the nodes in real time beside the controller: tests/test_vcan_controller.py). Two
+    gait cycles, no FAULT, no fall. Nothing here asserts a time; the overruns of both sides are in
+    the failure message, as a machine too loaded to keep up would show them."""
+    from controller.loop import RealtimeLoop
+    from nodes.host import running_in_thread
+    from protocol.catalog import TICK_MS
+    from tools.pipeline import default_max_time_s
+
+    cycles = 2
+    channel = "loop-realtime-walk"
+    cfg = with_overrides(BASE, {"bus.channel": channel, "sim.mode": "sagittal"})
+    node_bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
+    ctl_bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
+    host = NodesHost(cfg, node_bus, lockstep=False, seed=4)
+    states, fall = [], None
+    try:
+        with running_in_thread(host):
+            core = ControllerCore(cfg.controller)
+            loop = RealtimeLoop(core, ctl_bus, max_delta_counter=cfg.protocol.max_delta_counter)
+            core.request_walk()  # the operator's start, kept until the nodes are up and it stands
+            for _ in range(int(default_max_time_s(cycles) * 1000 / TICK_MS)):
+                states.append(loop.step().state)
+                fall = host.patient.fall
+                if fall or states[-1] == GaitState.FAULT or sum(s.landed for s in core.steps) >= 2 * cycles:
+                    break
+            nodes = host.status()
+    finally:
+        host.close()
+        node_bus.shutdown()
+        ctl_bus.shutdown()
+    timing = loop.stats.summary()
+    why = (f"events {loop.report.events[-4:]}, controller overruns {timing['overruns']} (skipped {timing['skipped_ticks']}), "
+           f"nodes overruns {nodes['overruns']}, status read-window misses {loop.report.timeouts}")
+    assert GaitState.FAULT not in states and fall is None, why
+    landed = [s.leg for s in core.steps if s.landed]
+    assert len(landed) == 2 * cycles and landed[0] != landed[1], why
+    assert {GaitState.SWING_LEFT, GaitState.SWING_RIGHT} <= set(states)
+    assert loop.rx.stats.rejected_total == 0 and nodes["receiver"]["rejected"] == 0
+    assert {n["error"] for n in nodes["nodes"].values()} == {"NONE"} and nodes["fall"] is None
+    assert timing["ticks"] == len(states)
+
+
 def test_the_controller_benchmark_runs_the_real_pipeline():
-    """``aider-exo bench controller`` measures a real run (figures are printed, never asserted)."""
+    """``aider-exo bench controller`` measures a walking run (figures are printed, never asserted);
+    a short one here."""
     import argparse
 
     from tools.bench import controller as bench
 
-    result = bench.run(argparse.Namespace(config=None, ticks=20, realtime_ticks=20))
-    assert result["lockstep"]["final_state"] == "STAND" and result["realtime"]["ticks"] == 20
-    assert result["lockstep"]["controller_work_us"]["max"] > 0 and result["plain_sleep_loop"]["ticks"] == 20
-    assert "controller work per tick" in bench.format_text(result)
+    result = bench.run(argparse.Namespace(config=None, cycles=1, realtime_cycles=1, max_ticks=60))
+    ls, rt = result["lockstep"], result["realtime"]
+    assert ls["walk"]["ticks"] == 60 and rt["walk"]["ticks"] == 60 and result["plain_sleep_loop"]["ticks"] == 60
+    assert ls["walk"]["walking_ticks"] > 0 and ls["walk"]["final_state"] in bench.WALKING  # the figures are from walking
+    assert ls["physics_ticks"] == 60 and ls["controller_work_us"]["max"] > 0 and ls["pipeline_to_bare_sim"] > 0
+    assert rt["walk"]["fault"] is None and rt["wakeup_lateness"]["max_us"] >= rt["wakeup_lateness"]["p99_us"]
+    text = bench.format_text(result)
+    assert "controller work per tick, p99" in text and "plain sleep loop" in text
 
 
 def test_the_loop_writes_one_telemetry_record_per_tick(rig, tmp_path):

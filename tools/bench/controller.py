@@ -1,14 +1,21 @@
-"""Controller speed: its work per tick, the lock-step pipeline against the bare simulation, and the
-real-time loop's wake-up lateness beside a plain sleep loop, all in one run.
+"""Controller speed while walking: its work per tick, the lock-step pipeline against the bare
+simulation, and the real-time loop's wake-up lateness beside a plain sleep loop, all in one run.
 
-1. Lock-step, in process: the controller's loop (SYNC, reading and checking the nodes' frames,
-   supervision, estimation, FSM, envelope, encoding) against the four emulated nodes and the
-   simulation. The controller's own work per tick excludes the time the nodes take; the pipeline's
-   ticks per second are set beside the bare simulation tick timed inside the same run.
-2. Real time: the controller's loop on absolute 20 ms deadlines with the nodes in a thread of the
-   same process (so the nodes' physics competes with the loop for the interpreter lock, a harsher
-   setting than the two processes of a deployment), and a plain ``sleep(deadline - now)`` loop as
-   the baseline, one after the other in this run. Wake-up lateness: min, avg, p99, max.
+Every figure comes from a walk: the controller brings the nodes up, walks ``--cycles`` gait
+cycles (sagittal mode, seed 0, the compensated step length) and the figures are taken over the
+ticks in which it walks (DOUBLE_SUPPORT, SWING_LEFT, SWING_RIGHT), not the start-up and standing.
+
+1. Lock-step, in process (:func:`tools.pipeline.drive`, as ``aider-exo walk``): the controller's loop
+   (SYNC, reading and checking the nodes' frames, supervision, estimation, FSM, gait, envelope,
+   encoding) against the four emulated nodes and the simulation. The controller's own work per
+   tick excludes the time the nodes take; the pipeline's walking ticks per second are set beside
+   the bare simulation tick (:class:`nodes.host.SimTickTimer`) timed over the same ticks.
+2. Real time: the controller's loop on absolute 20 ms deadlines walks ``--realtime-cycles`` with
+   the nodes in real time in a thread of the same process (the nodes' physics competes with the
+   loop for the interpreter lock, a harsher setting than the two processes of a deployment), then
+   a plain ``sleep(deadline - now)`` loop as the baseline for as many ticks. Wake-up lateness:
+   min, avg, p99, max; overruns of the controller loop and of the nodes' physics timer. Both loops
+   run at normal priority (no real-time set-up), so the comparison is the loop's own cost.
 """
 
 from __future__ import annotations
@@ -25,50 +32,101 @@ from protocol.clock import MonotonicClock
 
 GOAL_WORK_P99_US = 1000.0
 GOAL_PIPELINE_RATIO = 0.7
+MODE = "sagittal"  # the mode that walks (docs/SIM.md)
+SEED = 0
+WALKING = ("DOUBLE_SUPPORT", "SWING_LEFT", "SWING_RIGHT")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", help="YAML configuration (default: the packaged one)")
-    parser.add_argument("--ticks", type=int, default=500, help="lock-step ticks (default 500 = 10 s simulated)")
-    parser.add_argument("--realtime-ticks", type=int, default=250, help="real-time ticks for each loop (default 250 = 5 s)")
+    parser.add_argument("--cycles", type=int, default=2, help="gait cycles walked in lock-step (default 2)")
+    parser.add_argument("--realtime-cycles", type=int, default=2,
+                        help="gait cycles walked in real time (default 2, about 25 s; the plain sleep loop runs as long again)")
+    parser.add_argument("--max-ticks", type=int,
+                        help="end each walk after at most this many ticks (a short run; default: the walk's stall limit)")
 
 
-def _lockstep(cfg: Any, ticks: int) -> dict[str, Any]:
+def _percentiles(ns: np.ndarray) -> dict[str, float] | None:
+    if ns.size == 0:
+        return None
+    us = ns / 1e3
+    return {
+        "p50": round(float(np.percentile(us, 50)), 1),
+        "p99": round(float(np.percentile(us, 99)), 1),
+        "max": round(float(us.max()), 1),
+    }
+
+
+def _walk_summary(outcome: Any, states: list[str]) -> dict[str, Any]:
+    return {
+        "cycles_completed": outcome.cycles_completed,
+        "steps_completed": len(outcome.landed),
+        "fall": outcome.fall_reason,
+        "fault": outcome.fault,
+        "final_state": outcome.final_state,
+        "ticks": len(states),
+        "walking_ticks": sum(s in WALKING for s in states),
+    }
+
+
+def _max_ticks(args: argparse.Namespace, cycles: int) -> int:
+    from protocol.catalog import TICK_MS
+    from tools.pipeline import default_max_time_s
+
+    limit = int(default_max_time_s(cycles) * 1000 / TICK_MS)
+    return limit if args.max_ticks is None else min(limit, args.max_ticks)
+
+
+def _lockstep(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
     import can
 
     from controller.core import ControllerCore
     from controller.loop import LockstepLoop
     from nodes.host import NodesHost, SimTickTimer
+    from tools.pipeline import WalkOutcome, drive, walk_config
 
     clock = MonotonicClock()
-    cfg = with_overrides(cfg, {"bus.interface": "virtual", "bus.channel": "bench-controller"})
+    cfg = walk_config(cfg, MODE, "bench-controller")
+    states: list[str] = []
+    end_ns: list[int] = []  # per tick: when it ended
+    sim_ns: list[int] = []  # per tick: the bare simulation's time so far
     with can.Bus(interface="virtual", channel=cfg.bus.channel, ignore_config=True) as node_bus, \
             can.Bus(interface="virtual", channel=cfg.bus.channel, ignore_config=True) as ctl_bus:
-        host = NodesHost(cfg, node_bus, lockstep=True, seed=0, clock=clock)
+        host = NodesHost(cfg, node_bus, lockstep=True, seed=SEED, clock=clock)
         try:
             sim = SimTickTimer(host, clock)
             host.boot()
-            loop = LockstepLoop(ControllerCore(cfg.controller), ctl_bus, pump=lambda: host.poll(0.0), clock=clock)
+            core = ControllerCore(cfg.controller)
+            loop = LockstepLoop(core, ctl_bus, pump=lambda: host.poll(0.0), clock=clock,
+                                max_delta_counter=cfg.protocol.max_delta_counter)
+            outcome = WalkOutcome(mode=MODE, seed=SEED, policy=core.policy.mode, steps=core.steps)
+
+            def on_tick(result: Any, _core: Any) -> None:
+                states.append(result.state.name)
+                end_ns.append(clock.now_ns())
+                sim_ns.append(sim.ns)
+
             start = clock.now_ns()
-            for _ in range(ticks):
-                result = loop.step()
-            total_ns = clock.now_ns() - start
+            drive(loop, outcome, cycles=cycles, max_ticks=max_ticks, fallen=lambda: host.patient.fall, on_tick=on_tick)
+            physics_ticks = host.stats.physics_ticks
         finally:
             host.close()
-    n = min(loop.stats.count, loop.stats.work_ns.size)
-    work_us = loop.stats.work_ns[:n] / 1e3
-    physics_ticks = host.stats.physics_ticks
+    n = len(states)
+    walking = np.array([s in WALKING for s in states], dtype=bool)
+    wall = np.diff(np.array([start, *end_ns], dtype=np.int64))  # each tick: controller + nodes + simulation
+    sim_tick = np.diff(np.array([0, *sim_ns], dtype=np.int64))
+    work = loop.stats.work_ns[:n]
+    walk_wall_s, walk_sim_s = wall[walking].sum() / 1e9, sim_tick[walking].sum() / 1e9
+    walk_ticks = int(walking.sum())
     return {
-        "ticks": ticks,
-        "final_state": result.state.name,
-        "controller_work_us": {
-            "p50": round(float(np.percentile(work_us, 50)), 1),
-            "p99": round(float(np.percentile(work_us, 99)), 1),
-            "max": round(float(work_us.max()), 1),
-        },
-        "pipeline_ticks_per_s": round(ticks / (total_ns / 1e9), 1),
-        "bare_sim_ticks_per_s": round(physics_ticks / (sim.ns / 1e9), 1),
-        "pipeline_to_bare_sim": round((ticks / total_ns) / (physics_ticks / sim.ns), 3),
+        "walk": _walk_summary(outcome, states),
+        "physics_ticks": physics_ticks,
+        "controller_work_us": _percentiles(work[walking]),
+        "controller_work_us_all_ticks": _percentiles(work),
+        "controller_work_us_swing": _percentiles(work[np.array([s.startswith("SWING") for s in states], dtype=bool)]),
+        "pipeline_ticks_per_s": round(walk_ticks / walk_wall_s, 1) if walk_ticks else None,
+        "bare_sim_ticks_per_s": round(walk_ticks / walk_sim_s, 1) if walk_ticks else None,
+        "pipeline_to_bare_sim": round(walk_sim_s / walk_wall_s, 3) if walk_ticks else None,
     }
 
 
@@ -85,61 +143,107 @@ def _plain_sleep_loop(ticks: int) -> dict[str, Any]:
     return stats.summary()["wakeup_lateness"]
 
 
-def _realtime(cfg: Any, ticks: int) -> dict[str, Any]:
+def _realtime(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
     import can
 
     from controller.core import ControllerCore
     from controller.loop import RealtimeLoop
+    from controller.timing import TickStats
     from nodes.host import NodesHost, running_in_thread
+    from tools.pipeline import WalkOutcome, drive, walk_config
 
-    cfg = with_overrides(cfg, {"bus.interface": "virtual", "bus.channel": "bench-controller-rt"})
+    cfg = walk_config(cfg, MODE, "bench-controller-rt")
+    states: list[str] = []
     with can.Bus(interface="virtual", channel=cfg.bus.channel, ignore_config=True) as node_bus, \
             can.Bus(interface="virtual", channel=cfg.bus.channel, ignore_config=True) as ctl_bus:
-        host = NodesHost(cfg, node_bus, lockstep=False, seed=0)
+        host = NodesHost(cfg, node_bus, lockstep=False, seed=SEED)
         try:
             with running_in_thread(host):
-                loop = RealtimeLoop(ControllerCore(cfg.controller), ctl_bus)
-                for _ in range(ticks):
-                    result = loop.step()
+                core = ControllerCore(cfg.controller)
+                loop = RealtimeLoop(core, ctl_bus, max_delta_counter=cfg.protocol.max_delta_counter)
+                outcome = WalkOutcome(mode=MODE, seed=SEED, policy=core.policy.mode, steps=core.steps)
+                drive(loop, outcome, cycles=cycles, max_ticks=max_ticks, fallen=lambda: host.patient.fall,
+                      on_tick=lambda result, _core: states.append(result.state.name))
+            nodes = host.status()
         finally:
             host.close()
+    n = len(states)
+    walking = np.array([s in WALKING for s in states], dtype=bool)
     s = loop.stats.summary()
     return {
-        "ticks": ticks,
-        "final_state": result.state.name,
-        "wakeup_lateness": s["wakeup_lateness"],
-        "controller_work": s["work"],
+        "walk": _walk_summary(outcome, states),
+        "wakeup_lateness": TickStats._summary(loop.stats.late_ns[:n][walking]),
+        "wakeup_lateness_all_ticks": s["wakeup_lateness"],
+        "controller_work": TickStats._summary(loop.stats.work_ns[:n][walking]),
         "overruns": s["overruns"],
         "skipped_ticks": s["skipped_ticks"],
+        "timeouts": loop.report.timeouts,
+        "nodes_overruns": nodes["overruns"],
+        "rejected": loop.rx.stats.rejected_total,
     }
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    if args.ticks <= 0 or args.realtime_ticks <= 0:
-        raise ConfigError("--ticks and --realtime-ticks must be positive")
+    if args.cycles <= 0 or args.realtime_cycles <= 0 or (args.max_ticks is not None and args.max_ticks <= 0):
+        raise ConfigError("--cycles, --realtime-cycles and --max-ticks must be positive")
     cfg = load_config(args.config or default_config_path())
     if cfg.sim is None or cfg.nodes is None or cfg.controller is None:
         raise ConfigError("controller, sim and nodes sections required by the controller benchmark", key="controller")
+    cfg = with_overrides(cfg, {"sim.mode": MODE})
+    lockstep = _lockstep(cfg, args.cycles, _max_ticks(args, args.cycles))
+    realtime = _realtime(cfg, args.realtime_cycles, _max_ticks(args, args.realtime_cycles))
+    plain_ticks = realtime["walk"]["ticks"]
     return {
         "benchmark": "controller",
-        "lockstep": _lockstep(cfg, args.ticks),
-        "realtime": _realtime(cfg, args.realtime_ticks),
-        "plain_sleep_loop": {"ticks": args.realtime_ticks, "wakeup_lateness": _plain_sleep_loop(args.realtime_ticks)},
+        "mode": MODE,
+        "seed": SEED,
+        "cycles_asked": {"lockstep": args.cycles, "realtime": args.realtime_cycles},
+        "lockstep": lockstep,
+        "realtime": realtime,
+        "plain_sleep_loop": {"ticks": plain_ticks, "wakeup_lateness": _plain_sleep_loop(plain_ticks)},
         "goals": {"controller_work_p99_us_max": GOAL_WORK_P99_US, "pipeline_to_bare_sim_min": GOAL_PIPELINE_RATIO},
-        "machine": {"python": platform.python_version(), "cpu_count": os.cpu_count(), "processor": platform.processor() or platform.machine()},
+        "machine": {"python": platform.python_version(), "cpu_count": os.cpu_count(), "processor": platform.processor() or platform.machine(),
+                    "load_avg_1min": round(os.getloadavg()[0], 2)},
     }
+
+
+def _walked(w: dict[str, Any], asked: int) -> str:
+    end = f"fell ({w['fall']})" if w["fall"] else (f"FAULT ({w['fault']})" if w["fault"] else "no fall")
+    return (f"{w['cycles_completed']} of {asked} gait cycles, {end}, {w['ticks']} ticks "
+            f"of which {w['walking_ticks']} walking")
+
+
+def _us(x: float | None) -> str:
+    if x is None:
+        return "n/a"
+    return f"{x / 1000:.2f} ms" if x >= 1000 else f"{x:.0f} us"
 
 
 def format_text(r: dict[str, Any]) -> str:
     ls, rt, plain = r["lockstep"], r["realtime"], r["plain_sleep_loop"]["wakeup_lateness"]
-    w = ls["controller_work_us"]
+    w = ls["controller_work_us"] or {"p50": None, "p99": None, "max": None}
+    swing = ls["controller_work_us_swing"] or {"p99": None}
     lat = rt["wakeup_lateness"]
-    return "\n".join([
-        f"controller benchmark ({ls['ticks']} lock-step ticks, {rt['ticks']} real-time ticks; final state {ls['final_state']})",
-        f"controller work per tick: p50 {w['p50']:.0f} us, p99 {w['p99']:.0f} us, max {w['max']:.0f} us "
-        f"(goal: p99 at most {r['goals']['controller_work_p99_us_max']:.0f} us)",
-        f"lock-step pipeline {ls['pipeline_ticks_per_s']:.0f} ticks/s, bare simulation {ls['bare_sim_ticks_per_s']:.0f} ticks/s: "
-        f"{ls['pipeline_to_bare_sim']:.2f} of it (goal at least {r['goals']['pipeline_to_bare_sim_min']})",
-        f"real-time wake-up lateness: controller loop p99 {lat['p99_us']:.0f} us, max {lat['max_us']:.0f} us "
-        f"(overruns {rt['overruns']}); plain sleep loop p99 {plain['p99_us']:.0f} us, max {plain['max_us']:.0f} us",
-    ]) + "\n"
+    goals = r["goals"]
+    ratio = ls["pipeline_to_bare_sim"]
+    rows = [
+        ("controller work per tick, p50", _us(w["p50"]), ""),
+        ("controller work per tick, p99", _us(w["p99"]),
+         f"at most {_us(goals['controller_work_p99_us_max'])} (swing ticks alone: {_us(swing['p99'])})"),
+        ("controller work per tick, max", _us(w["max"]), ""),
+        ("lock-step pipeline / bare simulation", "n/a" if ratio is None else f"{ratio:.2f}",
+         f"at least {goals['pipeline_to_bare_sim_min']} ({ls['pipeline_ticks_per_s']} against {ls['bare_sim_ticks_per_s']} ticks/s)"),
+        ("real-time wake-up lateness, p99", _us(lat["p99_us"]), f"plain sleep loop {_us(plain['p99_us'])}"),
+        ("real-time wake-up lateness, max", _us(lat["max_us"]), f"plain sleep loop {_us(plain['max_us'])}"),
+        ("real-time controller work, p99 / max", f"{_us(rt['controller_work']['p99_us'])} / {_us(rt['controller_work']['max_us'])}", ""),
+    ]
+    lines = [
+        f"controller benchmark, walking ({r['mode']}, seed {r['seed']}; figures over the walking ticks)",
+        f"  lock-step, in process: {_walked(ls['walk'], r['cycles_asked']['lockstep'])}",
+        f"  real time, nodes in a thread: {_walked(rt['walk'], r['cycles_asked']['realtime'])}",
+        (f"    overruns: controller {rt['overruns']} ({rt['skipped_ticks']} ticks skipped), nodes' physics timer "
+         f"{rt['nodes_overruns']}; ticks whose node status missed the read window {rt['timeouts']}"),
+        f"{'figure':<40}{'measured':>14}  goal / baseline (same run)",
+    ]
+    lines += [f"{name:<40}{value:>14}  {note}".rstrip() for name, value, note in rows]
+    return "\n".join(lines) + "\n"
