@@ -1,8 +1,9 @@
 """The controller's tick loop on a bus: read (drain, bounded), update (:class:`ControllerCore`),
 write; lock-step, behind the one clock abstraction.
 
-Lock-step: tick ``k`` sends SYNC(k), then waits until every operational node's JOINT_STATUS of the
-tick is in (at most ``tick_timeout_s``; a node that does not answer is counted, and the core's
+Lock-step: tick ``k`` sends SYNC(k), then waits until every operational node's frames of the tick
+(its JOINT_STATUS and the sensors it sends per SYNC, from the DBC) are in (at most
+``tick_timeout_s``; a node whose JOINT_STATUS does not come is counted, and the core's
 lost-node supervision makes it a fault after ``lost_ticks``), runs the core and sends its commands
 and, on the DBC's schedule, the controller's heartbeat. Before the nodes are operational a tick
 waits ``boot_wait_s`` for frames. ``pump`` lets an in-process peer (the emulated nodes) run
@@ -61,6 +62,11 @@ class LockstepLoop:
         self._idle_ns = 0  # time of the tick spent waiting for (or running) the nodes
         catalog = self.codec.catalog
         self._status_ids = {catalog.message("JOINT_STATUS", n).frame_id: n for n in core.node_names}
+        # what each node sends per SYNC (as the nodes do: the cyclic frames but the heartbeat)
+        self._per_sync_ids = {
+            n: frozenset(m.frame_id for m in catalog.sent_by(n) if m.is_cyclic and m.family != "HEARTBEAT")
+            for n in core.node_names
+        }
 
     def _send(self, name: str, values: tuple) -> None:
         try:
@@ -70,8 +76,13 @@ class LockstepLoop:
             self.report.send_failures += 1
 
     def _drain(self, tick: int, until_ns: int, expected: set[str]) -> None:
-        """Read this tick's frames until every expected node has reported or the deadline."""
+        """Read this tick's frames until every expected node has reported or the deadline.
+
+        Across processes (no ``pump``) the tick ends as soon as every expected node's per-SYNC
+        frames are in, not at the deadline: ``recv`` would otherwise wait out the rest of the
+        timeout once the last frame has come."""
         got: set[str] = set()
+        pending = set().union(*(self._per_sync_ids[n] for n in expected)) if self.pump is None else set()
         read = 0
         clock = self.clock
         while read < self.max_frames:
@@ -94,6 +105,10 @@ class LockstepLoop:
                 node = self._status_ids.get(result.message.frame_id)
                 if node is not None:
                     got.add(node)
+                if pending:
+                    pending.discard(result.message.frame_id)
+                    if not pending and expected <= got:
+                        break
         self.report.drained_max = max(self.report.drained_max, read)
         if not expected <= got:
             self.report.timeouts += 1
