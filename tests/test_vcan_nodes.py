@@ -102,5 +102,6 @@ def test_nodes_process_over_vcan0_seen_by_candump_and_driven_by_cansend(vcan0, t
     # The knee followed the cansend commands.
     knee = [d.values for _, d in ours if d.name == "JOINT_STATUS_LK"]
     assert knee[-1].drive_state == DriveState.TRACK
-    assert knee[-1].position_rad == pytest.approx(knee_start + 0.2, abs=0.01)
+    # (within 0.02 rad: the firmware's 3000 N.m/rad against the standing patient rebalancing over the bent leg)
+    assert knee[-1].position_rad == pytest.approx(knee_start + 0.2, abs=0.02)
     assert final["nodes"]["LEFT_KNEE"]["error"] == "NONE" and final["receiver"]["rejected"] == 0

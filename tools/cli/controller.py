@@ -104,6 +104,8 @@ def run(args: argparse.Namespace) -> int:
                         stopping_since = loop.report.ticks
                 elif state not in walking or loop.report.ticks - stopping_since > 500:
                     break
+                if args.cycles is not None and state in (GaitState.FAULT, GaitState.HOLD):
+                    break  # a walk of N cycles ends at a fault (on the robot the loop holds and waits for a reset)
                 result = loop.step()
                 notifier.ping(clock.now_ns())  # from the loop itself: a hung loop stops the pings
                 if not args.quiet and clock.now_ns() >= next_status:

@@ -191,16 +191,18 @@ def _walk_two_processes(args: argparse.Namespace, cfg: Any, policy: Any, status:
             if result.estimate is not None:
                 estimates[result.tick] = result.estimate.x_ratio
 
+        # The controller's socket is open before the nodes start, so it keeps their boot-ups; its
+        # first SYNC goes out once all four have booted (a deterministic start: no SYNC queues up
+        # in the nodes' socket while their simulation loads).
+        bus = open_bus(cfg.bus)
         nodes = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
+            _wait_for_boot_ups(cfg, nodes)
             with StopSignals():
-                bus = open_bus(cfg.bus)
-                try:
-                    outcome = walk_controller(cfg, bus, cycles=args.steps, seed=args.seed, mode=args.mode, policy=policy,
-                                              max_time_s=args.max_time, on_tick=on_tick, telemetry=telemetry)
-                finally:
-                    bus.shutdown()
+                outcome = walk_controller(cfg, bus, cycles=args.steps, seed=args.seed, mode=args.mode, policy=policy,
+                                          max_time_s=args.max_time, on_tick=on_tick, telemetry=telemetry)
         finally:
+            bus.shutdown()
             if nodes.poll() is None:
                 nodes.send_signal(signal.SIGTERM)
             try:
@@ -223,3 +225,31 @@ def _walk_two_processes(args: argparse.Namespace, cfg: Any, policy: Any, status:
                 outcome.fell, outcome.fall_reason = True, row["fall"]
     outcome.sim_time_s = report.get("sim_time_s", outcome.sim_time_s)
     return outcome, {"pid": nodes.pid, "syncs": report.get("syncs"), "receiver": report.get("receiver"), "fall": report.get("fall")}
+
+
+def _wait_for_boot_ups(cfg: Any, nodes: subprocess.Popen, timeout_s: float = 120.0) -> None:
+    """Until the four node boards' boot-up heartbeats are on the bus (seen on a socket of our own)."""
+    from config.loader import AiderError
+    from protocol.bus import open_bus
+    from protocol.clock import MonotonicClock
+    from protocol.codec import Codec, Decoded
+    from protocol.enums import NmtState
+
+    codec, clock = Codec(), MonotonicClock()
+    booted: set[str] = set()
+    deadline = clock.now_ns() + int(timeout_s * 1e9)
+    probe = open_bus(cfg.bus)
+    try:
+        while len(booted) < len(codec.catalog.joint_nodes):
+            if nodes.poll() is not None:
+                raise AiderError(f"the nodes process exited with {nodes.returncode} before booting")
+            if clock.now_ns() > deadline:
+                raise AiderError(f"the nodes did not boot within {timeout_s:.0f} s (seen: {sorted(booted) or 'none'})")
+            msg = probe.recv(timeout=0.1)
+            if msg is None:
+                continue
+            result = codec.decode(msg.arbitration_id, bytes(msg.data))  # total: foreign frames are rejections
+            if type(result) is Decoded and result.message.family == "HEARTBEAT" and result.values.nmt_state == NmtState.BOOT_UP:
+                booted.add(result.message.sender)
+    finally:
+        probe.shutdown()
