@@ -56,18 +56,25 @@ PROBE_ID = 0x7FF  # not in the DBC: sent until candump shows it listens, then le
 
 @contextmanager
 def candump(channel, path):
-    """``candump -L channel > path`` from the moment it listens until the block ends."""
+    """``candump -L channel > path`` from the moment it listens until the block ends, and until it
+    has written every frame sent before the end: a last probe frame (frames arrive in order) must
+    be in the file before candump is stopped (in the slow sandbox it can be a few frames behind)."""
     clock = MonotonicClock()
     with path.open("w") as out:
         proc = subprocess.Popen(["candump", "-L", channel], stdout=out, stderr=subprocess.PIPE)
         try:
-            deadline = clock.now_ns() + 20_000_000_000
             with can.Bus(interface="socketcan", channel=channel, ignore_config=True) as probe:
+                deadline = clock.now_ns() + 20_000_000_000
                 while path.stat().st_size == 0:
                     assert clock.now_ns() < deadline, "candump did not start"
                     probe.send(can.Message(arbitration_id=PROBE_ID, data=b"", is_extended_id=False))
                     clock.sleep_until(clock.now_ns() + 50_000_000)
-            yield
+                yield
+                probe.send(can.Message(arbitration_id=PROBE_ID, data=b"\xff", is_extended_id=False))
+                deadline = clock.now_ns() + 20_000_000_000
+                while f"{PROBE_ID:03X}#FF" not in path.read_text():
+                    assert clock.now_ns() < deadline, "candump did not catch up"
+                    clock.sleep_until(clock.now_ns() + 20_000_000)
         finally:
             proc.send_signal(signal.SIGINT)
             proc.wait(timeout=30)
