@@ -16,8 +16,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description=(
             "The main controller: SYNC every tick, the nodes' frames read and checked, node supervision, state "
             "estimation and the gait FSM, the DMP swing with the CoM-compensated step length, joint commands "
-            "through the safety envelope, its heartbeat. It brings the nodes up and, once standing, walks (the "
-            "operator's start; --stand only stands). Lock-step: each tick waits for the nodes' frames of its SYNC; "
+            "through the safety envelope, its heartbeat. It brings the nodes up and stands; it walks only when the "
+            "operator asks for it (--walk, or --cycles N), so a controller restarted after a crash never walks on "
+            "its own (FAULTS.md F22). Lock-step: each tick waits for the nodes' frames of its SYNC; "
             "real time (default): absolute 20 ms deadlines with the real-time set-up where the OS permits it. A "
             "one-line status per second on stderr; SIGINT or SIGTERM asks for a stop (the swing in progress "
             "ends first), then the run ends with cyclictest-style tick statistics."
@@ -27,8 +28,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lockstep", action="store_true", help="a tick advances when the nodes have reported (default: real time)")
     p.add_argument("--ticks", type=positive_int, help="stop after this many ticks (default: run until SIGINT/SIGTERM)")
     p.add_argument("--cpu", type=int, help="real time: pin the loop to this CPU")
-    p.add_argument("--stand", action="store_true", help="stand only: never start walking")
-    p.add_argument("--cycles", type=positive_int, metavar="N", help="stop walking after N gait cycles, then exit")
+    p.add_argument("--walk", action="store_true", help="the operator's start: walk once standing, until SIGINT/SIGTERM")
+    p.add_argument("--cycles", type=positive_int, metavar="N", help="walk N gait cycles once standing, then stop and exit")
     p.add_argument("--fixed-step", type=positive_float, metavar="M", help="every step this long: no compensation (the baseline)")
     p.add_argument("--learn", action="store_true", help="learn the compensation online with PI² (saved to --patient's file)")
     p.add_argument("--patient", metavar="NAME", help="walk with (and, learning, update) this patient's learned parameters")
@@ -96,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
             while args.ticks is None or loop.report.ticks < args.ticks:
                 state = result.state if result is not None else GaitState.INIT
                 if stopping_since is None:
-                    if not args.stand and state == GaitState.STAND and not core.steps:
+                    if (args.walk or args.cycles is not None) and state == GaitState.STAND and not core.steps:
                         core.request_walk()  # the operator's start: once, when first standing
                     landed = sum(1 for step in core.steps if step.landed)
                     if stop.requested or (args.cycles is not None and landed >= 2 * args.cycles):
