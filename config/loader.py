@@ -45,6 +45,8 @@ from __future__ import annotations
 import collections.abc
 import dataclasses
 import difflib
+import hashlib
+import json
 import math
 import os
 import re
@@ -835,6 +837,12 @@ def config_to_dict(config: Any) -> dict[str, Any]:
     if not (dataclasses.is_dataclass(config) and not isinstance(config, type)):
         raise TypeError(f"expected a config dataclass instance, got {type(config).__name__}")
     return _to_plain(config)
+
+
+def config_hash(config: Any) -> str:
+    """SHA-256 of a config object's canonical JSON form (equal configurations, equal hashes)."""
+    text = json.dumps(config_to_dict(config), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 # ---------------------------------------------------------------------------

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import can
 import pytest
 
 from config import default_config_path, load_config, with_overrides
 from protocol.busload import busiest_tick
 from protocol.catalog import default_catalog
-from tools.buscheck import BusCheckError, NodesSide, ThreadPeer, run_controller
+from tools.buscheck import NodesSide, ThreadPeer, run_controller
 from tools.cli import main
 
 

@@ -20,7 +20,6 @@ from controller.demonstration import (
     DemonstrationError,
     demonstration_hash,
     lift_profile,
-    minimum_jerk,
     swing_demonstration,
 )
 from controller.dmp import Dmp, DmpError, DmpParams, DmpWeights, basis, fit, forcing, phase, reference_rollout

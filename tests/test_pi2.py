@@ -277,7 +277,7 @@ def test_update_after_k_rollouts_only_and_never_mid_rollout():
     p = Pi2Params(rollouts_per_update=3, steps_per_rollout=2)
     L = Pi2Learner(p, A, rng(2))
     for k in range(3):
-        th = L.ask()
+        L.ask()
         L.tell_step(float(k))
         np.testing.assert_array_equal(L.theta, A)  # no update while walking
         L.tell_step(float(k))

@@ -24,7 +24,7 @@ import numpy as np
 from protocol.busload import busiest_tick, load_report
 from protocol.catalog import DBC_PATH
 from protocol.clock import MonotonicClock
-from protocol.codec import Codec, Decoded
+from protocol.codec import Codec
 from protocol.crc import crc8
 from protocol.e2e import Receiver, Transmitter
 from protocol.synthetic import random_record
@@ -78,7 +78,6 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             assert all(abs(decoded[k] - v) < 1e-9 for k, v in rec._asdict().items())
 
     specs = list(frames)
-    encoders = [codec.encoder(m) for m in specs]
 
     def ours_encode(n: int) -> None:
         for t in range(n):

@@ -314,9 +314,8 @@ def run_replay(args: argparse.Namespace) -> int:
 
 
 def run_resim(args: argparse.Namespace) -> int:
-    from config import default_config_path, load_config, parse_override, with_overrides
+    from config import config_hash, default_config_path, load_config, parse_override, with_overrides
     from tools.trace import TraceError
-    from tools.trace.files import config_hash
     from tools.trace.resim import format_text, resimulate
     from tools.trace.source import TraceInput
 

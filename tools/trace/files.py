@@ -22,7 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from config import Config, config_to_dict
+from config import Config, config_hash
 from protocol.catalog import Catalog
 from tools.trace import TraceError
 
@@ -83,12 +83,6 @@ def read_sidecar(trace: str | Path) -> dict[str, Any] | None:
     if not isinstance(data, dict) or data.get("schema") != SIDECAR_SCHEMA:
         raise TraceError(f"{path}: not an aider-exo trace metadata file")
     return data
-
-
-def config_hash(cfg: Config) -> str:
-    """SHA-256 of the configuration's canonical JSON form (equal configurations, equal hashes)."""
-    text = json.dumps(config_to_dict(cfg), sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def dbc_info(catalog: Catalog) -> dict[str, Any]:
