@@ -16,6 +16,7 @@ rating or a target outside the joint's range is rejected (counted; the previous 
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,6 +58,14 @@ class JointImpedance:
         self.rejected = 0
         self.applied = np.zeros(n)
         self._needs_latch = np.ones(n, dtype=bool)
+        self._latch_pending = True
+        # Each joint's loop as tau = clip(k (x0 - q) + d (v0 - qd) + f, lo, hi), set per command and
+        # latch (:meth:`_set_law`), so that the per-step :meth:`torques` is a few array operations.
+        self._k, self._x0, self._d = np.zeros(n), np.zeros(n), np.zeros(n)
+        self._v0, self._f = np.zeros(n), np.zeros(n)
+        self._lo, self._hi = np.zeros(n), np.zeros(n)
+        for i in range(n):
+            self._set_law(i)
 
     def index(self, name: str) -> int:
         return self.names.index(name)
@@ -64,8 +73,7 @@ class JointImpedance:
     def command(self, i: int, mode: int, position: float, velocity: float = 0.0, torque: float = 0.0, limit: float | None = None) -> bool:
         """Set joint ``i``'s command; returns False (and counts a rejection) for an invalid one."""
         limit = self.rated[i] if limit is None else limit
-        values = (position, velocity, torque, limit)
-        if mode not in (0, 1, 2, 3) or not all(np.isfinite(values)):
+        if mode not in (0, 1, 2, 3) or not all(map(math.isfinite, (position, velocity, torque, limit))):
             self.rejected += 1
             return False
         if not (self.lower[i] <= position <= self.upper[i]) or not (0.0 <= limit <= self.rated[i]):
@@ -73,25 +81,36 @@ class JointImpedance:
             return False
         if mode in (Mode.HOLD, Mode.QUICK_STOP) and self.mode[i] not in (Mode.HOLD, Mode.QUICK_STOP):
             self._needs_latch[i] = True
+            self._latch_pending = True
         self.mode[i] = mode
         self.target[i], self.velocity_ff[i], self.torque_ff[i], self.limit[i] = position, velocity, torque, limit
+        self._set_law(i)
         return True
+
+    def _set_law(self, i: int) -> None:
+        """Joint ``i``'s loop coefficients for its mode. Track: ``K (q* - q) + D (qd* - qd) + tau_ff``
+        within the command's limit; hold and quick stop: ``K_h (q_latched - q) + D_h (0 - qd)``
+        (the same value as ``... - D_h qd``) within the hold limit; disable: zero gains, zero limit."""
+        g, mode = self.gains, self.mode[i]
+        if mode == Mode.TRACK:
+            law = (g.stiffness[i], self.target[i], g.damping[i], self.velocity_ff[i], self.torque_ff[i], self.limit[i])
+        elif mode == Mode.HOLD or mode == Mode.QUICK_STOP:
+            limit = min(g.hold_torque_limit[i], self.rated[i])
+            law = (g.hold_stiffness[i], self.hold_position[i], g.hold_damping[i], 0.0, 0.0, limit)
+        else:
+            law = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        self._k[i], self._x0[i], self._d[i], self._v0[i], self._f[i], self._hi[i] = law
+        self._lo[i] = -law[5]
 
     def torques(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """Torque of every joint for the measured positions and velocities."""
-        g = self.gains
-        if self._needs_latch.any():
-            self.hold_position[self._needs_latch] = q[self._needs_latch]
-            self._needs_latch[:] = False
-        track = self.mode == Mode.TRACK
-        hold = (self.mode == Mode.HOLD) | (self.mode == Mode.QUICK_STOP)
-        tau = np.where(
-            track,
-            g.stiffness * (self.target - q) + g.damping * (self.velocity_ff - qd) + self.torque_ff,
-            g.hold_stiffness * (self.hold_position - q) - g.hold_damping * qd,
-        )
-        limit = np.where(track, self.limit, np.minimum(g.hold_torque_limit, self.rated))
-        tau = np.clip(tau, -limit, limit)
-        tau[~(track | hold)] = 0.0
+        if self._latch_pending:  # hold and quick stop latch the position measured when entered
+            for i in np.flatnonzero(self._needs_latch):
+                self.hold_position[i] = q[i]
+                self._needs_latch[i] = False
+                self._set_law(i)
+            self._latch_pending = False
+        tau = self._k * (self._x0 - q) + self._d * (self._v0 - qd) + self._f
+        tau = np.minimum(np.maximum(tau, self._lo), self._hi)  # np.clip(tau, -limit, limit) without its dispatch
         self.applied = tau
         return tau

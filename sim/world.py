@@ -12,6 +12,7 @@ holds it to the walking plane.
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import os
 import sys
@@ -57,6 +58,21 @@ def _c_stdout_to_devnull():
         os.close(devnull)
 
 
+class BoundClient(BulletClient):
+    """A :class:`BulletClient` that binds each PyBullet function to its client id once.
+
+    ``BulletClient.__getattr__`` builds a ``functools.partial`` on every call (hundreds of
+    thousands per walk); here the first lookup of a name keeps its partial as an instance
+    attribute, which later lookups find without ``__getattr__``. The calls are the same.
+    """
+
+    def __getattr__(self, name: str):
+        attribute = super().__getattr__(name)
+        if isinstance(attribute, functools.partial) and name != "disconnect":
+            self.__dict__[name] = attribute
+        return attribute
+
+
 @dataclass(frozen=True)
 class StancePose:
     """An initial posture: where the feet and stick tips are, and how the trunk leans."""
@@ -77,7 +93,7 @@ class World:
         self.dt = 1.0 / cfg.physics.rate_hz
         self.steps = 0
         with _c_stdout_to_devnull():
-            self.client = BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+            self.client = BoundClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
         c = self.client
         c.setAdditionalSearchPath(pybullet_data.getDataPath())
         c.setPhysicsEngineParameter(
@@ -108,6 +124,8 @@ class World:
         self._arm_idx = np.array([self.joint_index[n] for n in ARM_JOINT_NAMES])
         self._ankle_idx = np.array(ankles)
         self._torque_idx = list(self._exo_idx) + list(self._arm_idx) + list(self._ankle_idx)
+        self._torque_idx_array = np.array(self._torque_idx)
+        self._all_joints = list(range(len(JOINT_ORDER)))
         j = cfg.model.joints
         fw = cfg.firmware
         exo_specs = [j.hip, j.knee, j.hip, j.knee]
@@ -196,9 +214,9 @@ class World:
     # -- stepping ------------------------------------------------------------------------------
 
     def read_joints(self) -> None:
-        states = self.client.getJointStates(self.robot, range(len(JOINT_ORDER)))
-        for i, s in enumerate(states):
-            self.q[i], self.qd[i] = s[0], s[1]
+        states = self.client.getJointStates(self.robot, self._all_joints)
+        self.q[:] = [s[0] for s in states]
+        self.qd[:] = [s[1] for s in states]
 
     def step(self) -> None:
         """One physics step: joint loops (firmware, muscles, ankle springs), then the physics."""
@@ -210,7 +228,7 @@ class World:
         ankle = self.cfg.model.joints.ankle
         tau_ankle = -ankle.stiffness_nm_rad * (q[self._ankle_idx] - ankle.rest_rad)
         forces = np.concatenate([tau_exo, tau_arm, tau_ankle])
-        self.tau[self._torque_idx] = forces
+        self.tau[self._torque_idx_array] = forces
         c.setJointMotorControlArray(self.robot, self._torque_idx, pybullet.TORQUE_CONTROL, forces=forces.tolist())
         if self.cfg.mode == "sagittal":
             self._hold_to_plane()
