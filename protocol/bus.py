@@ -8,18 +8,58 @@ missing SocketCAN into one line that says how to get it.
 from __future__ import annotations
 
 import errno
+import queue
 import socket
 from pathlib import Path
+from typing import Any
 
 import can
+from can.interfaces.virtual import VirtualBus
 
 from config import BusConfig
+from protocol.clock import epoch_s
 from protocol.errors import BusUnavailableError
 
 _FIXES = (
     "fixes: `sudo modprobe vcan && sudo ip link add dev vcan0 type vcan && sudo ip link set up vcan0`, "
     "or run the command under `tools/vcan-run --` (user-mode Linux), or set bus.interface: virtual"
 )
+
+
+class InProcessBus(VirtualBus):
+    """python-can's virtual bus (same channels, receive queues, timestamps and errors; buses of
+    either class on one channel see each other) whose ``send`` copies a message cheaply.
+
+    :class:`~can.interfaces.virtual.VirtualBus` deep-copies every message once per receiver
+    (``copy.deepcopy``: about 15 us a frame, a sixth of an in-process walk's bus time); this
+    copies the fields and the data bytes, which is all a deep copy of a message holds.
+    """
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._check_if_open()
+        timestamp = msg.timestamp if self.preserve_timestamps else epoch_s()
+        all_sent = True
+        for bus_queue in self.channel:
+            if bus_queue is self.queue and not self.receive_own_messages:
+                continue
+            msg_copy = can.Message(
+                timestamp=timestamp, arbitration_id=msg.arbitration_id, is_extended_id=msg.is_extended_id,
+                is_remote_frame=msg.is_remote_frame, is_error_frame=msg.is_error_frame, channel=self.channel_id,
+                dlc=msg.dlc, data=bytearray(msg.data), is_fd=msg.is_fd, is_rx=bus_queue is not self.queue,
+                bitrate_switch=msg.bitrate_switch, error_state_indicator=msg.error_state_indicator,
+            )
+            try:
+                bus_queue.put(msg_copy, block=True, timeout=timeout)
+            except queue.Full:
+                all_sent = False
+        if not all_sent:
+            raise can.CanOperationError("Could not send message to one or more recipients")
+
+
+def virtual_bus(channel: str, **kwargs: Any) -> InProcessBus:
+    """An in-process virtual bus on ``channel`` (:class:`InProcessBus`; what ``can.Bus(interface=
+    "virtual", channel=channel, ignore_config=True, **kwargs)`` opens, with the cheaper send)."""
+    return InProcessBus(channel=channel, **kwargs)
 
 
 def socketcan_problem(channel: str, sys_class_net: Path = Path("/sys/class/net")) -> str | None:
@@ -48,12 +88,7 @@ def socketcan_problem(channel: str, sys_class_net: Path = Path("/sys/class/net")
 def open_bus(cfg: BusConfig) -> can.BusABC:
     """Open the bus of ``cfg``; raises :class:`BusUnavailableError` with a one-line reason and fixes."""
     if cfg.interface == "virtual":
-        return can.Bus(
-            interface="virtual",
-            channel=cfg.channel,
-            receive_own_messages=cfg.receive_own_messages,
-            ignore_config=True,
-        )
+        return virtual_bus(cfg.channel, receive_own_messages=cfg.receive_own_messages)
     problem = socketcan_problem(cfg.channel)
     if problem is not None:
         raise BusUnavailableError(f"cannot open socketcan channel {cfg.channel!r}: {problem}; {_FIXES}")

@@ -21,6 +21,12 @@ class Clock(Protocol):
         """Return at (or after) ``deadline_ns``; at once if it has passed."""
 
 
+def epoch_s() -> float:
+    """Wall-clock seconds since the epoch: only for stamping CAN messages as python-can does
+    (``time.time()``), never for timing."""
+    return time.time()
+
+
 class MonotonicClock:
     """Real time. CPython >= 3.11 sleeps with clock_nanosleep on CLOCK_MONOTONIC."""
 

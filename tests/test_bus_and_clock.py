@@ -8,7 +8,7 @@ import can
 import pytest
 
 from config import BusConfig
-from protocol.bus import open_bus, socketcan_problem
+from protocol.bus import InProcessBus, open_bus, socketcan_problem, virtual_bus
 from protocol.clock import ManualClock, TickTimer
 from protocol.errors import BusUnavailableError
 
@@ -19,6 +19,30 @@ def test_virtual_bus_opens_and_carries_frames():
         a.send(can.Message(arbitration_id=0x80, data=b"\x01", is_extended_id=False))
         msg = b.recv(timeout=1)
         assert msg is not None and msg.arbitration_id == 0x80
+
+
+def test_in_process_bus_delivers_as_python_cans_virtual_bus():
+    """Same channel, receivers, own-message rule, timestamps and flags as VirtualBus; each
+    receiver gets its own copy of the data; both classes on one channel see each other."""
+    with virtual_bus("t-fast") as a, virtual_bus("t-fast", receive_own_messages=True) as b, \
+            can.Bus(interface="virtual", channel="t-fast", ignore_config=True) as plain:
+        assert isinstance(a, InProcessBus) and isinstance(a, can.interfaces.virtual.VirtualBus)
+        sent = can.Message(arbitration_id=0x123, data=b"\x01\x02", is_extended_id=False, timestamp=5.0)
+        a.send(sent)
+        sent.data[0] = 0xFF  # the sender's buffer is not the receivers'
+        got_b, got_plain = b.recv(timeout=1), plain.recv(timeout=1)
+        assert a.recv(timeout=0) is None  # not its own message
+        for got in (got_b, got_plain):
+            assert got is not None and got is not sent
+            assert (got.arbitration_id, bytes(got.data), got.dlc, got.is_extended_id) == (0x123, b"\x01\x02", 2, False)
+            assert got.channel == "t-fast" and got.is_rx and got.timestamp != 5.0
+        assert got_b.data is not got_plain.data
+        b.send(can.Message(arbitration_id=0x7, data=b"", is_extended_id=False))
+        own = b.recv(timeout=1)
+        assert own is not None and own.arbitration_id == 0x7 and not own.is_rx
+        assert a.recv(timeout=1).arbitration_id == 0x7 and plain.recv(timeout=1).arbitration_id == 0x7
+        plain.send(can.Message(arbitration_id=0x8, data=b"\x09", is_extended_id=False))
+        assert a.recv(timeout=1).arbitration_id == 0x8
 
 
 def test_missing_socketcan_gives_one_line_with_fixes(monkeypatch):

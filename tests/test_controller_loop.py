@@ -4,13 +4,13 @@ the legs; faults on the bus latch FAULT; a reset brings it back."""
 
 from __future__ import annotations
 
-import can
 import pytest
 
 from config import default_config_path, load_config, with_overrides
 from controller.core import ControllerCore
 from controller.loop import LockstepLoop
 from nodes.host import NodesHost
+from protocol.bus import virtual_bus
 from protocol.enums import GaitState
 
 BASE = load_config(default_config_path())
@@ -21,8 +21,8 @@ def rig(request):
     def make(faults=None):
         channel = f"loop-{request.node.name}"
         cfg = with_overrides(BASE, {"bus.channel": channel, **({"nodes.faults": faults} if faults else {})})
-        node_bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
-        ctl_bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
+        node_bus = virtual_bus(channel)
+        ctl_bus = virtual_bus(channel)
         host = NodesHost(cfg, node_bus, lockstep=True, seed=4)
         host.boot()
         loop = LockstepLoop(ControllerCore(cfg.controller), ctl_bus, pump=lambda: host.poll(0.0))
@@ -91,8 +91,8 @@ def test_real_time_controller_and_real_time_nodes_hold_the_hhea_up(request):
 
     channel = "loop-realtime"
     cfg = with_overrides(BASE, {"bus.channel": channel})
-    node_bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
-    ctl_bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
+    node_bus = virtual_bus(channel)
+    ctl_bus = virtual_bus(channel)
     host = NodesHost(cfg, node_bus, lockstep=False, seed=4)
     try:
         with running_in_thread(host):
@@ -122,8 +122,8 @@ def test_real_time_controller_walks_two_gait_cycles_with_real_time_nodes():
     cycles = 2
     channel = "loop-realtime-walk"
     cfg = with_overrides(BASE, {"bus.channel": channel, "sim.mode": "sagittal"})
-    node_bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
-    ctl_bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
+    node_bus = virtual_bus(channel)
+    ctl_bus = virtual_bus(channel)
     host = NodesHost(cfg, node_bus, lockstep=False, seed=4)
     states, fall = [], None
     try:

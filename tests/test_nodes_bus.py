@@ -13,6 +13,7 @@ import pytest
 
 from config import default_config_path, load_config, with_overrides
 from nodes.host import NodesHost
+from protocol.bus import virtual_bus
 from protocol.codec import Codec, Decoded, RejectReason, Rejection
 from protocol.e2e import Receiver, Transmitter
 from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
@@ -30,8 +31,8 @@ class ScriptedController:
         if faults:
             overrides["nodes.faults"] = faults
         cfg = with_overrides(BASE, overrides)
-        self.bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
-        self.node_bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
+        self.bus = virtual_bus(channel)
+        self.node_bus = virtual_bus(channel)
         self.codec = Codec()
         self.tx = Transmitter(self.codec)
         self.rx = Receiver(self.codec, max_delta_counter=1)
@@ -380,8 +381,8 @@ def test_real_time_mode_paces_physics_by_the_clock_and_samples_at_sync():
 
     clock = ManualClock()
     cfg = with_overrides(BASE, {"bus.channel": "nodes-realtime"})
-    with can.Bus(interface="virtual", channel="nodes-realtime", ignore_config=True) as ctl_bus, \
-            can.Bus(interface="virtual", channel="nodes-realtime", ignore_config=True) as node_bus:
+    with virtual_bus("nodes-realtime") as ctl_bus, \
+            virtual_bus("nodes-realtime") as node_bus:
         host = NodesHost(cfg, node_bus, lockstep=False, seed=1, clock=clock)
         try:
             tx, rx = Transmitter(host.codec), Receiver(Codec())

@@ -26,6 +26,7 @@ from controller.core import ControllerCore, TickResult
 from controller.loop import LockstepLoop
 from controller.policy import StepPolicy, StepRecord
 from controller.telemetry import TelemetryLog
+from protocol.bus import virtual_bus
 from protocol.catalog import TICK_MS
 from protocol.clock import MonotonicClock
 from protocol.enums import GaitState
@@ -174,8 +175,8 @@ def walk(
     outcome = WalkOutcome(mode=mode, seed=seed, policy=core.policy.mode, steps=core.steps)
     clock = MonotonicClock()
     t0 = clock.now_ns()
-    with can.Bus(interface="virtual", channel=channel, ignore_config=True) as node_bus, \
-            can.Bus(interface="virtual", channel=channel, ignore_config=True) as ctl_bus:
+    with virtual_bus(channel) as node_bus, \
+            virtual_bus(channel) as ctl_bus:
         host = NodesHost(cfg, node_bus, lockstep=True, seed=seed)
         try:
             host.boot()

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from config import ConfigError, default_config_path, load_config, with_overrides
+from protocol.bus import virtual_bus
 from protocol.clock import MonotonicClock
 
 GOAL_WORK_P99_US = 1000.0
@@ -78,8 +79,6 @@ def _max_ticks(args: argparse.Namespace, cycles: int) -> int:
 
 
 def _lockstep(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
-    import can
-
     from controller.core import ControllerCore
     from controller.loop import LockstepLoop
     from nodes.host import NodesHost, SimTickTimer
@@ -90,8 +89,8 @@ def _lockstep(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
     states: list[str] = []
     end_ns: list[int] = []  # per tick: when it ended
     sim_ns: list[int] = []  # per tick: the bare simulation's time so far
-    with can.Bus(interface="virtual", channel=cfg.bus.channel, ignore_config=True) as node_bus, \
-            can.Bus(interface="virtual", channel=cfg.bus.channel, ignore_config=True) as ctl_bus:
+    with virtual_bus(cfg.bus.channel) as node_bus, \
+            virtual_bus(cfg.bus.channel) as ctl_bus:
         host = NodesHost(cfg, node_bus, lockstep=True, seed=SEED, clock=clock)
         try:
             sim = SimTickTimer(host, clock)
@@ -144,8 +143,6 @@ def _plain_sleep_loop(ticks: int) -> dict[str, Any]:
 
 
 def _realtime(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
-    import can
-
     from controller.core import ControllerCore
     from controller.loop import RealtimeLoop
     from controller.timing import TickStats
@@ -154,8 +151,8 @@ def _realtime(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
 
     cfg = walk_config(cfg, MODE, "bench-controller-rt")
     states: list[str] = []
-    with can.Bus(interface="virtual", channel=cfg.bus.channel, ignore_config=True) as node_bus, \
-            can.Bus(interface="virtual", channel=cfg.bus.channel, ignore_config=True) as ctl_bus:
+    with virtual_bus(cfg.bus.channel) as node_bus, \
+            virtual_bus(cfg.bus.channel) as ctl_bus:
         host = NodesHost(cfg, node_bus, lockstep=False, seed=SEED)
         try:
             with running_in_thread(host):

@@ -17,6 +17,7 @@ import platform
 from typing import Any
 
 from config import ConfigError, default_config_path, load_config, with_overrides
+from protocol.bus import virtual_bus
 from protocol.clock import MonotonicClock
 
 GOAL_OVERHEAD_PERCENT = 25.0
@@ -28,8 +29,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run_mode(cfg: Any, mode: str, ticks: int) -> dict[str, Any]:
-    import can
-
     from nodes.host import NodesHost, SimTickTimer  # PyBullet loads only when this benchmark runs
     from protocol.codec import Codec, Decoded
     from protocol.e2e import Receiver, Transmitter
@@ -39,8 +38,8 @@ def _run_mode(cfg: Any, mode: str, ticks: int) -> dict[str, Any]:
     cfg = with_overrides(cfg, {"sim.mode": mode, "bus.interface": "virtual", "bus.channel": f"bench-nodes-{mode}"})
     codec = Codec()
     tx, rx = Transmitter(codec), Receiver(codec)
-    with can.Bus(interface="virtual", channel=cfg.bus.channel, ignore_config=True) as ctl, \
-            can.Bus(interface="virtual", channel=cfg.bus.channel, ignore_config=True) as node_bus:
+    with virtual_bus(cfg.bus.channel) as ctl, \
+            virtual_bus(cfg.bus.channel) as node_bus:
         host = NodesHost(cfg, node_bus, lockstep=True, seed=0, clock=clock, codec=codec)
         try:
             sim = SimTickTimer(host, clock)

@@ -24,6 +24,7 @@ from typing import Any
 
 import can
 
+from protocol.bus import virtual_bus
 from protocol.catalog import TICK_MS
 from protocol.clock import Clock
 from protocol.codec import Codec, Decoded
@@ -191,7 +192,7 @@ def record_walk(cfg: Any, writer: TraceWriter, *, cycles: int, seed: int, mode: 
     channel = f"aider-trace-record-{os.getpid()}-{id(writer)}"
     restamp = LockstepRestamper(Codec(), cfg.bus.channel)
 
-    with can.Bus(interface="virtual", channel=channel, ignore_config=True) as tap:
+    with virtual_bus(channel) as tap:
         def drain(*_: Any) -> None:
             batch = []
             while (msg := tap.recv(timeout=0.0)) is not None:
