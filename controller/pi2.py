@@ -481,6 +481,7 @@ class Pi2Learner:
         self._rejections: list[Rejection] = []
         self._current: tuple[np.ndarray, np.ndarray] | None = None  # (theta used, eps)
         self._current_costs: list[float] = []
+        self._pending: list[tuple[np.ndarray, np.ndarray]] = []  # roll-outs of ask_batch() awaiting tell_batch()
 
     def _checked_theta(self, theta: Any, name: str) -> np.ndarray:
         t = _as_float_array(theta, 1, name)
@@ -620,6 +621,37 @@ class Pi2Learner:
         if len(self._batch) < self._params.rollouts_per_update:
             return None
         return self._update()
+
+    def ask_batch(self) -> list[np.ndarray]:
+        """Parameters of every roll-out the next update still needs (K minus the reused ones), for
+        roll-outs run in parallel; each is ``ask()`` in turn, so the noise draws and the result are
+        those of the same roll-outs run one after another. Report them with :meth:`tell_batch`.
+        With learning disabled: an empty list."""
+        if not self._learning_enabled:
+            return []
+        if self._current is not None:
+            raise LearnerError("ask_batch() during a roll-out: end or abort it first")
+        thetas = []
+        for _ in range(self._params.rollouts_per_update - len(self._batch)):
+            self._current = None
+            thetas.append(self.ask())
+            self._pending.append(self._current)
+        self._current = None
+        return thetas
+
+    def tell_batch(self, rollouts: list[tuple[list[float], bool]]) -> UpdateRecord | None:
+        """Results of the roll-outs of :meth:`ask_batch`, in its order: each the immediate costs of
+        its completed steps and whether it fell. Runs the update as :meth:`end_rollout` does."""
+        if len(rollouts) != len(self._pending):
+            raise LearnerError(f"tell_batch() needs {len(self._pending)} roll-out result(s), got {len(rollouts)}")
+        pending, self._pending = self._pending, []
+        record = None
+        for current, (costs, fell) in zip(pending, rollouts):
+            self._current, self._current_costs = current, []
+            for c in costs:
+                self.tell_step(c)
+            record = self.end_rollout(fell)
+        return record
 
     def enable_learning(self) -> None:
         """Re-enable learning after it was disabled by rejections (resets the consecutive count)."""

@@ -66,6 +66,12 @@ class StepRecord:
         }
 
 
+def cycle_costs(step_forces: list[float]) -> list[float]:
+    """The immediate cost of every completed gait cycle, from the mean stick force of each step in
+    order: the mean over the cycle's two steps (paper equation (10))."""
+    return [float(np.mean(step_forces[i:i + 2])) for i in range(0, len(step_forces) - 1, 2)]
+
+
 def _r(x: float, digits: int = 4) -> float | None:
     return round(x, digits) if math.isfinite(x) else None
 
@@ -114,7 +120,7 @@ class StepPolicy:
         self._pending.append(step.mean_stick_force_n)
         if len(self._pending) < 2:
             return
-        cost = float(np.mean(self._pending))
+        (cost,) = cycle_costs(self._pending)
         self._pending.clear()
         self.learner.tell_step(cost)
         self.cycle_costs.append(cost)

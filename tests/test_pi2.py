@@ -664,3 +664,39 @@ def test_module_imports_nothing_it_must_not():
     assert not names & {"sim", "nodes", "time", "random", "datetime"}
     src = (ROOT / "controller" / "pi2.py").read_text()
     assert "np.random.seed" not in src and "np.random.normal" not in src
+
+
+def test_batch_interface_equals_rollouts_one_after_another():
+    """ask_batch/tell_batch (roll-outs run in parallel) draw the same noise and give the same
+    updates as ask/tell/end_rollout in turn, falls and reused roll-outs included."""
+    p = Pi2Params(reuse_best=2)
+    seq, par = Pi2Learner(p, A, rng(7)), Pi2Learner(p, A, rng(7))
+
+    def walk(theta: np.ndarray, k: int) -> tuple[list[float], bool]:
+        costs = [float(abs(theta[0] + 8.4) + abs(theta[1] - 0.8) * 10 + i) for i in range(p.steps_per_rollout)]
+        return (costs[:3], True) if k == 1 else (costs, False)
+
+    for _update in range(4):
+        thetas = par.ask_batch()
+        assert len(thetas) == p.rollouts_per_update - par.rollouts_in_batch
+        results = [walk(t, k) for k, t in enumerate(thetas)]
+        record_par = par.tell_batch(results)
+        record_seq = None
+        for k in range(len(thetas)):
+            theta = seq.ask()
+            np.testing.assert_array_equal(theta, thetas[k])
+            for c in results[k][0]:
+                seq.tell_step(c)
+            record_seq = seq.end_rollout(results[k][1])
+        assert record_par == record_seq is not None
+    np.testing.assert_array_equal(par.theta, seq.theta)
+
+
+def test_tell_batch_needs_every_result():
+    L = Pi2Learner(Pi2Params(), A, rng(1))
+    L.ask_batch()
+    with pytest.raises(LearnerError, match="needs 5"):
+        L.tell_batch([([1.0] * 10, False)])
+    L.ask()
+    with pytest.raises(LearnerError, match="during a roll-out"):
+        L.ask_batch()
