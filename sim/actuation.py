@@ -61,9 +61,8 @@ class JointImpedance:
         self._latch_pending = True
         # Each joint's loop as tau = clip(k (x0 - q) + d (v0 - qd) + f, lo, hi), set per command and
         # latch (:meth:`_set_law`), so that the per-step :meth:`torques` is a few array operations.
-        self._k, self._x0, self._d = np.zeros(n), np.zeros(n), np.zeros(n)
-        self._v0, self._f = np.zeros(n), np.zeros(n)
-        self._lo, self._hi = np.zeros(n), np.zeros(n)
+        self._law = np.zeros((7, n))  # rows k, x0, d, v0, f, lo, hi; a joint's column set at once
+        self._k, self._x0, self._d, self._v0, self._f, self._lo, self._hi = self._law
         for i in range(n):
             self._set_law(i)
 
@@ -93,14 +92,13 @@ class JointImpedance:
         (the same value as ``... - D_h qd``) within the hold limit; disable: zero gains, zero limit."""
         g, mode = self.gains, self.mode[i]
         if mode == Mode.TRACK:
-            law = (g.stiffness[i], self.target[i], g.damping[i], self.velocity_ff[i], self.torque_ff[i], self.limit[i])
+            limit = self.limit[i]
+            self._law[:, i] = (g.stiffness[i], self.target[i], g.damping[i], self.velocity_ff[i], self.torque_ff[i], -limit, limit)
         elif mode == Mode.HOLD or mode == Mode.QUICK_STOP:
             limit = min(g.hold_torque_limit[i], self.rated[i])
-            law = (g.hold_stiffness[i], self.hold_position[i], g.hold_damping[i], 0.0, 0.0, limit)
+            self._law[:, i] = (g.hold_stiffness[i], self.hold_position[i], g.hold_damping[i], 0.0, 0.0, -limit, limit)
         else:
-            law = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        self._k[i], self._x0[i], self._d[i], self._v0[i], self._f[i], self._hi[i] = law
-        self._lo[i] = -law[5]
+            self._law[:, i] = 0.0
 
     def torques(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """Torque of every joint for the measured positions and velocities."""

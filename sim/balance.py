@@ -10,10 +10,13 @@ distribution produces the wrench and the residual says so: that is how the HHEA 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import nnls as _scipy_nnls
+
+from sim.linalg import cross
 
 
 def nnls(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -32,11 +35,15 @@ class Contact:
     lateral: bool = True  # False: no force across the walking direction (a leg without frontal-plane joints)
 
 
+@functools.lru_cache(maxsize=16)
 def pyramid_edges(mu: float, lateral: bool = True) -> np.ndarray:
     """(4, 3) unit-normal-load edges of a friction pyramid with coefficient ``mu``; without
-    ``lateral`` the pyramid is flattened to the x-z plane."""
+    ``lateral`` the pyramid is flattened to the x-z plane. Constant for its arguments: one
+    read-only array per (mu, lateral)."""
     mu_y = mu if lateral else 0.0
-    return np.array([[mu, 0, 1], [-mu, 0, 1], [0, mu_y, 1], [0, -mu_y, 1]], dtype=float)
+    edges = np.array([[mu, 0, 1], [-mu, 0, 1], [0, mu_y, 1], [0, -mu_y, 1]], dtype=float)
+    edges.flags.writeable = False
+    return edges
 
 
 def distribute(
@@ -63,9 +70,9 @@ def distribute(
     r = np.array([c.point for c in contacts]) - com  # (k, 3)
     a = np.empty((6, 4 * k))
     a[:3] = edges.reshape(-1, 3).T
-    a[3:] = np.cross(np.repeat(r, 4, axis=0), edges.reshape(-1, 3)).T
+    a[3:] = cross(np.repeat(r, 4, axis=0), edges.reshape(-1, 3)).T
     f0 = np.array([0.0, 0.0, min_normal_n])
-    base = np.concatenate([k * f0, np.cross(r, f0).sum(axis=0)])
+    base = np.concatenate([k * f0, cross(r, f0).sum(axis=0)])
     reg = np.repeat([np.sqrt(ct.cost) for ct in contacts], 4)
     lhs = np.vstack([weights[:, None] * a, np.diag(reg)])
     rhs = np.concatenate([weights * (wrench - base), np.zeros(4 * k)])

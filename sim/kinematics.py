@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim.linalg import cross, cross_z
 from sim.world import GRAVITY, World
 
 
@@ -20,6 +21,7 @@ class Kinematics:
         c, robot = world.client, world.robot
         n = c.getNumJoints(robot)
         self.n = n
+        self._links = list(range(n))
         self.axis_local = np.array([c.getJointInfo(robot, j)[13] for j in range(n)], dtype=float)
         parent = [c.getJointInfo(robot, j)[16] for j in range(n)]
         # ancestors[j]: joints whose motion moves link j (j itself and every joint above it)
@@ -48,14 +50,13 @@ class Kinematics:
         self.link_com[0] = base_pos
         self.link_vel[0] = base_lin
         self.link_rot[0] = np.array(c.getMatrixFromQuaternion(base_orn)).reshape(3, 3)
-        states = c.getLinkStates(robot, range(self.n), computeLinkVelocity=1)
-        for j, s in enumerate(states):
-            self.link_com[j + 1] = s[0]
-            self.link_vel[j + 1] = s[6]
-            self.joint_origin[j] = s[4]
-            rot = np.array(c.getMatrixFromQuaternion(s[5])).reshape(3, 3)
-            self.link_rot[j + 1] = rot
-            self.joint_axis[j] = rot @ self.axis_local[j]
+        states = c.getLinkStates(robot, self._links, computeLinkVelocity=1)
+        self.link_com[1:] = [s[0] for s in states]
+        self.link_vel[1:] = [s[6] for s in states]
+        self.joint_origin[:] = [s[4] for s in states]
+        self.link_rot[1:] = np.reshape([c.getMatrixFromQuaternion(s[5]) for s in states], (self.n, 3, 3))
+        # every link's rot @ axis at once (each axis is a unit vector of the joint frame: exact)
+        self.joint_axis[:] = (self.link_rot[1:] @ self.axis_local[:, :, None])[..., 0]
 
     @property
     def com(self) -> np.ndarray:
@@ -71,13 +72,13 @@ class Kinematics:
         if link < 0:
             return jac
         idx = self.ancestors[link]
-        jac[:, idx] = np.cross(self.joint_axis[idx], point - self.joint_origin[idx]).T
+        jac[:, idx] = cross(self.joint_axis[idx], point - self.joint_origin[idx]).T
         return jac
 
     def gravity_torques(self) -> np.ndarray:
         """Joint torques that hold every link against gravity (``-Q``, Q the generalised gravity force)."""
         # Q_j = sum over links i moved by j of m_i (-g z) . (a_j x (c_i - o_j))
         lever = self.link_com[None, :, :] - self.joint_origin[:, None, :]  # (n, n+1, 3)
-        moment_z = np.cross(self.joint_axis[:, None, :], lever)[..., 2]  # z component of a_j x r
+        moment_z = cross_z(self.joint_axis[:, None, :], lever)  # z component of a_j x r
         q = -(GRAVITY * self.masses[None, :] * moment_z * self.moves).sum(axis=1)
         return -q

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from config.sim_schema import SensorsConfig
+from sim.linalg import clamp
 from sim.model import EXO_JOINTS
 from sim.world import GRAVITY, World
 
@@ -35,7 +36,7 @@ def quantise(value: np.ndarray | float, resolution: float) -> np.ndarray:
 
 def rpy_from_matrix(rot: np.ndarray) -> np.ndarray:
     """ZYX Euler angles (roll, pitch, yaw) of a rotation matrix; pitch > 0 is nose down about +y."""
-    pitch = -np.arcsin(np.clip(rot[2, 0], -1.0, 1.0))
+    pitch = -np.arcsin(clamp(rot[2, 0], -1.0, 1.0))
     roll = np.arctan2(rot[2, 1], rot[2, 2])
     yaw = np.arctan2(rot[1, 0], rot[0, 0])
     return np.array([roll, pitch, yaw])
@@ -66,6 +67,13 @@ class Sensors:
         self._exo = [world.joint_index[n] for n in EXO_JOINTS]
         foot = world.cfg.model.foot
         self._heel_toe_split_x = (foot.toe_front_m - foot.heel_back_m) / 2
+        # each value's resolution, in the order :meth:`read` lays the values out
+        self._resolution = np.repeat(
+            [cfg.encoder_resolution_rad, 0.001, 0.05, cfg.force_resolution_n, cfg.imu_orientation_resolution_rad,
+             cfg.imu_orientation_resolution_rad, cfg.gyro_resolution_rad_s, cfg.accel_resolution_m_s2,
+             cfg.force_resolution_n, cfg.force_resolution_n],
+            [4, 4, 4, 2, 6, 3, 3, 3, 2, 2],
+        )
 
     def _noise(self, std: float, shape: tuple[int, ...] | int) -> np.ndarray:
         return self.rng.normal(0.0, std, shape) if std > 0 else np.zeros(shape)
@@ -104,17 +112,23 @@ class Sensors:
         omega_world = np.array(w.client.getBaseVelocity(w.robot)[1])
         specific = rot.T @ (w.base_acceleration + np.array([0.0, 0.0, GRAVITY]))
         heel_toe = np.array([self.plantar("l"), self.plantar("r")])
-        force_res, force_std = cfg.force_resolution_n, cfg.force_noise_n
+        force_std = cfg.force_noise_n
+        # Noise drawn in the order of the Reading's fields (one seeded stream), then every value
+        # quantised to its sensor's resolution in one vectorised round.
+        raw = np.concatenate([
+            q, qd, tau,
+            sticks + self._noise(force_std, 2),
+            (stick_rpy + self._noise(cfg.imu_orientation_noise_rad, (2, 3))).ravel(),
+            rpy_from_matrix(rot) + self._noise(cfg.imu_orientation_noise_rad, 3),
+            rot.T @ omega_world + self._noise(cfg.gyro_noise_rad_s, 3),
+            specific + self._noise(cfg.accel_noise_m_s2, 3),
+            np.maximum(heel_toe[:, 0] + self._noise(force_std, 2), 0.0),
+            np.maximum(heel_toe[:, 1] + self._noise(force_std, 2), 0.0),
+        ])
+        v = quantise(raw, self._resolution)
         return Reading(
             time_s=w.time_s,
-            joint_position_rad=quantise(q, cfg.encoder_resolution_rad),
-            joint_velocity_rad_s=quantise(qd, 0.001),
-            joint_torque_nm=quantise(tau, 0.05),
-            stick_force_n=quantise(sticks + self._noise(force_std, 2), force_res),
-            stick_rpy_rad=quantise(stick_rpy + self._noise(cfg.imu_orientation_noise_rad, (2, 3)), cfg.imu_orientation_resolution_rad),
-            trunk_rpy_rad=quantise(rpy_from_matrix(rot) + self._noise(cfg.imu_orientation_noise_rad, 3), cfg.imu_orientation_resolution_rad),
-            trunk_rate_rad_s=quantise(rot.T @ omega_world + self._noise(cfg.gyro_noise_rad_s, 3), cfg.gyro_resolution_rad_s),
-            trunk_specific_force_m_s2=quantise(specific + self._noise(cfg.accel_noise_m_s2, 3), cfg.accel_resolution_m_s2),
-            heel_force_n=quantise(np.maximum(heel_toe[:, 0] + self._noise(force_std, 2), 0.0), force_res),
-            toe_force_n=quantise(np.maximum(heel_toe[:, 1] + self._noise(force_std, 2), 0.0), force_res),
+            joint_position_rad=v[0:4], joint_velocity_rad_s=v[4:8], joint_torque_nm=v[8:12],
+            stick_force_n=v[12:14], stick_rpy_rad=v[14:20].reshape(2, 3), trunk_rpy_rad=v[20:23],
+            trunk_rate_rad_s=v[23:26], trunk_specific_force_m_s2=v[26:29], heel_force_n=v[29:31], toe_force_n=v[31:33],
         )

@@ -34,6 +34,7 @@ from config.sim_schema import GaitConfig, SimConfig
 from sim.actuation import Mode
 from sim.balance import Contact, WrenchGains, desired_wrench, distribute
 from sim.kinematics import Kinematics
+from sim.linalg import clamp
 from sim.model import JOINT_ORDER, arm_ik, leg_ik
 from sim.sensors import Sensors, rpy_from_matrix
 from sim.truth import convex_hull_2d, fore_aft_ratio, pivot_polygon, stability_margin
@@ -266,7 +267,7 @@ class Walker:
                 self.com_target[0] = max(self.com_target[0], min(float(com[0]), self.lean_goal_x))
             if self.com_target[0] < self.lean_goal_x and comfortable:
                 self.com_target[0] = min(self.com_target[0] + step, self.lean_goal_x)
-            self.com_target[1] += np.clip(0.0 - self.com_target[1], -step, step)
+            self.com_target[1] += clamp(0.0 - self.com_target[1], -step, step)
 
     # -- the exoskeleton's scripted gait -------------------------------------------------------
 
@@ -373,14 +374,14 @@ class Walker:
         dt = self.dt_control
         want_x = trunk_origin[0] + (self.com_target[0] - com[0])
         back = s.shift_speed_m_s if self.phase is Phase.SHIFT else s.hip_speed_m_s
-        self.hip_goal[0] += np.clip(want_x - self.hip_goal[0], -back * dt, s.hip_speed_m_s * dt)
+        self.hip_goal[0] += clamp(want_x - self.hip_goal[0], -back * dt, s.hip_speed_m_s * dt)
         reach = min(
             math.sqrt(max(s.leg_reach_m**2 - (self.hip_goal[0] - self.ankle_xy(f)[0]) ** 2, 0.05)) for f in feet
         )
         z_goal = min(self.hip_height_nominal, self.body.ankle_height_m + reach)
-        self.hip_goal[1] += np.clip(z_goal - self.hip_goal[1], -0.1 * dt, 0.1 * dt)
+        self.hip_goal[1] += clamp(z_goal - self.hip_goal[1], -0.1 * dt, 0.1 * dt)
         hip_target = self.hip_goal[1]
-        self.pitch_goal += float(np.clip(s.trunk_pitch_rad - self.pitch_goal, -0.2 * dt, 0.2 * dt))
+        self.pitch_goal += clamp(s.trunk_pitch_rad - self.pitch_goal, -0.2 * dt, 0.2 * dt)
         # Stance feet rest on the floor: the body above the ankles is what the contacts must carry.
         foot_links = {f: w.link_index[f"foot_{f}"] for f in feet}
         carried = w.total_mass - sum(w.masses[i + 1] for i in foot_links.values())
@@ -432,13 +433,13 @@ class Walker:
                     q_arm = tuple(w.q[j] for j in joints)
                 for name, j, qa in zip(names, joints, q_arm):
                     n = w.arms.index(name)
-                    w.arms.command(n, Mode.TRACK, float(np.clip(qa, w.arms.lower[n] + 1e-3, w.arms.upper[n] - 1e-3)), 0.0,
-                                   float(np.clip(g[j], -w.arms.rated[n], w.arms.rated[n])))
+                    w.arms.command(n, Mode.TRACK, clamp(qa, w.arms.lower[n] + 1e-3, w.arms.upper[n] - 1e-3), 0.0,
+                                   clamp(g[j], -w.arms.rated[n], w.arms.rated[n]))
             else:
                 for name, j in zip(names, joints):
                     n = w.arms.index(name)
-                    q_now = float(np.clip(w.q[j], w.arms.lower[n] + 1e-3, w.arms.upper[n] - 1e-3))
-                    w.arms.command(n, Mode.TRACK, q_now, 0.0, float(np.clip(tau[j], -w.arms.rated[n], w.arms.rated[n])))
+                    q_now = clamp(w.q[j], w.arms.lower[n] + 1e-3, w.arms.upper[n] - 1e-3)
+                    w.arms.command(n, Mode.TRACK, q_now, 0.0, clamp(tau[j], -w.arms.rated[n], w.arms.rated[n]))
 
     def _command_legs(self, reading, tau: np.ndarray, g: np.ndarray, trunk_origin: np.ndarray, pitch: float) -> None:
         """The scripted exoskeleton's node commands (mode, position, velocity ff, torque ff)."""
@@ -455,10 +456,10 @@ class Walker:
                     h_world, knee = leg_ik(rel, self.body.thigh_m, self.body.shank_m)
                 except ValueError:
                     h_world, knee = w.q[hip_i] - pitch, w.q[knee_i]
-                hip_cmd = float(np.clip(h_world + pitch, w.exo.lower[n_hip] + 1e-3, w.exo.upper[n_hip] - 1e-3))
-                knee_cmd = float(np.clip(knee, w.exo.lower[n_knee] + 1e-3, w.exo.upper[n_knee] - 1e-3))
-                w.exo.command(n_hip, Mode.TRACK, hip_cmd, 0.0, float(np.clip(g[hip_i], -90, 90)))
-                w.exo.command(n_knee, Mode.TRACK, knee_cmd, 0.0, float(np.clip(g[knee_i], -90, 90)))
+                hip_cmd = clamp(h_world + pitch, w.exo.lower[n_hip] + 1e-3, w.exo.upper[n_hip] - 1e-3)
+                knee_cmd = clamp(knee, w.exo.lower[n_knee] + 1e-3, w.exo.upper[n_knee] - 1e-3)
+                w.exo.command(n_hip, Mode.TRACK, hip_cmd, 0.0, clamp(g[hip_i], -90, 90))
+                w.exo.command(n_knee, Mode.TRACK, knee_cmd, 0.0, clamp(g[knee_i], -90, 90))
             else:
                 # Stance: the legs yield to the patient's lean (admittance): they carry the hip to
                 # where the patient's CoM target puts it, at the stance height and trunk pitch, and
@@ -473,8 +474,8 @@ class Walker:
                     targets = self._stance_targets(hip_i, knee_i, step_xz, pitch)
                     ff = (s.leg_ff_gain * tau[hip_i], s.leg_ff_gain * tau[knee_i])
                 for n, target, torque in ((n_hip, targets[0], ff[0]), (n_knee, targets[1], ff[1])):
-                    q_cmd = float(np.clip(target, w.exo.lower[n] + 1e-3, w.exo.upper[n] - 1e-3))
-                    w.exo.command(n, Mode.TRACK, q_cmd, 0.0, float(np.clip(torque, -100.0, 100.0)))
+                    q_cmd = clamp(target, w.exo.lower[n] + 1e-3, w.exo.upper[n] - 1e-3)
+                    w.exo.command(n, Mode.TRACK, q_cmd, 0.0, clamp(torque, -100.0, 100.0))
 
     def _stance_targets(self, hip_i: int, knee_i: int, step_xz: np.ndarray, pitch: float) -> tuple[float, float]:
         """Hip and knee targets that move the hip by ``step_xz`` over a fixed ankle, trunk at its goal pitch."""

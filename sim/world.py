@@ -109,6 +109,7 @@ class World:
         self.link_index["trunk"] = -1
         self.masses = np.array([c.getDynamicsInfo(self.robot, i)[0] for i in range(-1, c.getNumJoints(self.robot))])
         self.total_mass = float(self.masses.sum())
+        self._base_com_local = np.array(c.getDynamicsInfo(self.robot, -1)[3])  # the trunk's inertial frame offset
         mu = cfg.model.friction
         c.changeDynamics(self.floor, -1, lateralFriction=mu)
         for i in range(-1, c.getNumJoints(self.robot)):
@@ -278,8 +279,7 @@ class World:
         i = self.link_index[link]
         if i == -1:
             pos, orn = c.getBasePositionAndOrientation(self.robot)
-            com_local = np.array(c.getDynamicsInfo(self.robot, -1)[3])
             rot = np.array(c.getMatrixFromQuaternion(orn)).reshape(3, 3)
-            return np.array(pos) - rot @ com_local, rot
+            return np.array(pos) - rot @ self._base_com_local, rot
         state = c.getLinkState(self.robot, i)
         return np.array(state[4]), np.array(c.getMatrixFromQuaternion(state[5])).reshape(3, 3)

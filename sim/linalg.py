@@ -1,0 +1,33 @@
+"""Small vector helpers for the per-tick numerics, cheaper than numpy's general versions on the
+tiny arrays of the model (3-vectors, a dozen joints), with the same arithmetic.
+
+``np.cross`` and ``np.clip`` spend most of their time on argument handling (axis moves,
+broadcasting checks, dispatch) for arrays of a few elements; these do only the arithmetic, in
+the same order, so their results are the same to the bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross(a, b)`` of (..., 3) arrays (broadcast): the same products and differences."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    x = a1 * b2 - a2 * b1
+    out = np.empty(np.shape(x) + (3,))
+    out[..., 0] = x
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
+
+
+def cross_z(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The z component of ``np.cross(a, b)`` alone: ``a_x b_y - a_y b_x``."""
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def clamp(x: float, lo: float, hi: float) -> float:
+    """``float(np.clip(x, lo, hi))`` for a scalar: ``min(max(x, lo), hi)`` (nan stays nan)."""
+    return float(min(max(x, lo), hi))
