@@ -80,20 +80,21 @@ class LockstepLoop:
 
         Across processes (no ``pump``) the tick ends as soon as every expected node's per-SYNC
         frames are in, not at the deadline: ``recv`` would otherwise wait out the rest of the
-        timeout once the last frame has come."""
+        timeout once the last frame has come. In process the peer is pumped whenever the bus has
+        nothing for us: the peer's frames come only from what we sent, so the frames read, and
+        their order, are those of pumping before every read (with about two pumps a tick, not one a frame)."""
         got: set[str] = set()
         pending = set().union(*(self._per_sync_ids[n] for n in expected)) if self.pump is None else set()
         read = 0
         clock = self.clock
         while read < self.max_frames:
-            if self.pump is not None:
-                t0 = clock.now_ns()
-                self.pump()
-                self._idle_ns += clock.now_ns() - t0
             t0 = clock.now_ns()
             remaining = (until_ns - t0) / 1e9
             msg = self.bus.recv(timeout=max(0.0, remaining) if self.pump is None else 0.0)
-            self._idle_ns += clock.now_ns() - t0  # waiting for the nodes is not the controller's work
+            if msg is None and self.pump is not None:
+                self.pump()
+                msg = self.bus.recv(timeout=0.0)
+            self._idle_ns += clock.now_ns() - t0  # waiting for (or running) the nodes is not the controller's work
             if msg is None:
                 if expected <= got or remaining <= 0:
                     break
