@@ -26,6 +26,7 @@ SUBCOMMANDS = {
     "controller": "tools.cli.controller",
     "walk": "tools.cli.walk",
     "trace": "tools.cli.trace",
+    "experiment": "tools.cli.experiment",
 }
 
 

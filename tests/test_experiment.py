@@ -1,0 +1,156 @@
+"""The experiments (tools/experiment): learning through the whole pipeline, parallel workers that
+give the same results as one process, resuming from stored walks, the paper's checks and the
+outputs. Tiny settings (one gait cycle per roll-out, two roll-outs per update) keep it fast; the
+full experiment is ``aider-exo experiment all``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from config import default_config_path, load_config, with_overrides
+from tools.cli import main
+from tools.experiment import experiment
+from tools.experiment.compare import GaitStats, compare_jobs
+from tools.experiment.experiment import Plan, comparison_checks, learning_checks
+from tools.experiment.learn import STARTS, LearningRun, Update, rollout_cost, walk_seed
+from tools.experiment.report import write_all
+from tools.experiment.runner import ExperimentError, WalkJob, WalkPool
+
+TINY = {"controller.learning.steps_per_rollout": 1, "controller.learning.rollouts_per_update": 2}
+CFG = with_overrides(load_config(default_config_path()), TINY)
+
+
+def _learn(out: Path, workers: int) -> experiment.Results:
+    return experiment.run(Plan(cfg=CFG, out=out, seeds=[0], starts=["A", "B"], updates=1, workers=workers), progress=False)
+
+
+def _strip(summary: dict) -> dict:
+    return {k: v for k, v in summary.items() if k not in ("walks_run", "walks_reused", "wall_time_s", "workers")}
+
+
+@pytest.fixture(scope="module")
+def parallel(tmp_path_factory) -> tuple[Path, experiment.Results]:
+    out = tmp_path_factory.mktemp("parallel")
+    return out, _learn(out, workers=2)
+
+
+def test_learning_runs_the_planned_walks_and_updates(parallel):
+    out, res = parallel
+    assert res.walks_run == res.plan.walks_planned() == 2 * (1 * (2 + 1) + 1)
+    for run in res.learning:
+        assert [u.index for u in run.updates] == [0, 1]
+        assert run.updates[0].evaluation_theta == STARTS[run.start]
+        assert len(run.rollouts) == 2
+        # the update's batch: two roll-outs with exploration around the start
+        assert run.updates[1].batch_mean_cycles is not None and run.updates[1].noise is not None
+        assert all(ro["job"]["theta"] != list(STARTS[run.start]) for ro in run.rollouts)
+    s = write_all(res, out)
+    for name in ("summary.json", "report.md", "learning.csv", "rollouts.csv", "steps.csv", "fig7-learning.png",
+                 "fig11-stick-force-while-learning.png"):
+        assert (out / name).stat().st_size > 0, name
+    assert json.loads((out / "summary.json").read_text()) == json.loads(json.dumps(s))
+    assert "| A seed 0 |" in (out / "report.md").read_text()
+
+
+def test_workers_give_the_results_of_one_process(parallel, tmp_path):
+    _, res = parallel
+    here = _learn(tmp_path, workers=0)
+    from tools.experiment.report import summary
+
+    assert _strip(summary(here)) == _strip(summary(res))
+
+
+def test_a_second_run_resumes_from_the_stored_walks(parallel):
+    out, res = parallel
+    stored = sorted((out / "cache").glob("*.json"))
+    assert len(stored) == res.walks_run
+    stored[0].unlink()  # as if the run had been interrupted before that walk finished
+    again = _learn(out, workers=0)
+    assert (again.walks_run, again.walks_reused) == (1, res.walks_run - 1)
+    from tools.experiment.report import summary
+
+    assert _strip(summary(again)) == _strip(summary(res))
+
+
+def test_a_damaged_stored_walk_is_a_one_line_error(tmp_path):
+    pool = WalkPool(CFG, 0, tmp_path)
+    job = WalkJob(seed=1, cycles=1, fixed_m=0.12)
+    (tmp_path / f"{job.key(pool.digest)}.json").write_text("{not json")
+    with pytest.raises(ExperimentError, match="unreadable walk result.*delete it"):
+        pool.submit(job)
+
+
+def test_walk_jobs_are_keyed_by_everything_that_changes_the_walk():
+    a = WalkJob(seed=1, cycles=10, theta=(-1.0, 0.6))
+    assert a.key("cfg") == WalkJob(seed=1, cycles=10, theta=(-1.0, 0.6)).key("cfg")
+    others = [WalkJob(seed=2, cycles=10, theta=(-1.0, 0.6)), WalkJob(seed=1, cycles=9, theta=(-1.0, 0.6)),
+              WalkJob(seed=1, cycles=10, theta=(-1.0, 0.61)), WalkJob(seed=1, cycles=10, fixed_m=0.12)]
+    assert len({a.key("cfg"), a.key("cfg2"), *(o.key("cfg") for o in others)}) == 6
+    with pytest.raises(ExperimentError, match="exactly one"):
+        WalkJob(seed=1, cycles=1)
+
+
+def test_rollout_cost_is_equation_11():
+    walked = {"cycle_costs": [50.0, 60.0], "fell": False}
+    fell = {"cycle_costs": [50.0], "fell": True}
+    assert rollout_cost(walked, 2, 5000.0, 1.0) == 110.0
+    assert rollout_cost(fell, 2, 5000.0, 1.0) == 2500.0 + 50.0
+    assert walk_seed(0, 1, 2) == walk_seed(0, 1, 2) != walk_seed(0, 1, 3)
+
+
+def _run(start: str, seed: int, costs: list[float], cycles: list[int], final_theta: tuple[float, float]) -> LearningRun:
+    run = LearningRun(start=start, seed=seed, theta0=STARTS[start])
+    for i, (c, n) in enumerate(zip(costs, cycles)):
+        run.updates.append(Update(index=i, theta=final_theta, evaluation_theta=final_theta if i else STARTS[start],
+                                  evaluation_cost=c, evaluation_cycles=n, evaluation_end="walked" if n == 10 else "fell"))
+    return run
+
+
+def test_learning_checks_follow_the_done_when_rules():
+    good = [_run("A", 0, [5600, 3000, 700], [0, 4, 10], (-0.50, 0.55)), _run("B", 0, [5500, 800, 650], [1, 10, 10], (-0.52, 0.56))]
+    c = learning_checks(good, 10)
+    assert c["all_converge_together"] and c["all_reach_full_cycles"] and c["all_cut_cost_30_percent"]
+    assert c["runs"]["A-s0"]["cut_30_at_update"] == 1 and c["runs"]["A-s0"]["first_full_at_update"] == 2
+    apart = [good[0], _run("B", 0, [5500, 800, 650], [1, 10, 10], (-0.1, 0.9))]
+    assert not learning_checks(apart, 10)["all_converge_together"]
+    flat = [_run("A", 0, [700, 690, 650], [10, 10, 10], (-0.5, 0.55))]
+    assert not learning_checks(flat, 10)["all_cut_cost_30_percent"]
+
+
+def _walk(seed: int, cycles: int, force: float, fell: bool) -> dict:
+    return {"job": {"seed": seed}, "cycles_completed": cycles, "fell": fell, "end": "fell" if fell else "walked",
+            "mean_stick_force_n": force, "mean_arm_torque_nm": 80.0, "step_lengths_m": [0.12]}
+
+
+def test_comparison_checks_follow_the_done_when_rules():
+    def gaits(adaptive_force: float, long_cycles: int) -> list[GaitStats]:
+        return [GaitStats("adaptive", (-0.5, 0.5), None, [_walk(s, 10, adaptive_force, False) for s in range(3)]),
+                GaitStats("0.10", None, 0.10, [_walk(s, 10, 64.0, False) for s in range(3)]),
+                GaitStats("0.12", None, 0.12, [_walk(s, 10, 58.0, False) for s in range(3)]),
+                GaitStats("0.20", None, 0.20, [_walk(s, long_cycles, 50.0, True) for s in range(3)])]
+
+    c = comparison_checks(gaits(55.0, 2), 10)
+    assert c["adaptive_force_below_every_non_falling_fixed"] and c["longest_fixed_falls_within_6_cycles"]
+    assert c["non_falling_fixed"] == ["0.10", "0.12"]
+    assert not comparison_checks(gaits(59.0, 2), 10)["adaptive_force_below_every_non_falling_fixed"]
+    assert not comparison_checks(gaits(55.0, 7), 10)["longest_fixed_falls_within_6_cycles"]
+
+
+def test_compare_walks_every_gait_on_the_same_seeds():
+    jobs = compare_jobs((-0.5, 0.5), seed=0, walks=2, cycles=10, mode="sagittal")
+    assert len(jobs) == 7 * 2
+    by_gait: dict = {}
+    for j in jobs:
+        by_gait.setdefault((j.fixed_m, j.theta), []).append(j.seed)
+    assert len({tuple(s) for s in by_gait.values()}) == 1
+
+
+def test_cli_errors_are_one_line(capsys, tmp_path):
+    assert main(["experiment", "learn", "--out", str(tmp_path), "--workers", "-1"]) == 1
+    assert capsys.readouterr().err.strip() == "aider-exo: error: --workers must be >= 0, got -1"
+    assert main(["experiment", "learn", "--out", str(tmp_path), "--set", "controller.learning.noise_alpha=-3"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "controller.learning.noise_alpha" in err

@@ -1,0 +1,113 @@
+"""``aider-exo experiment``: the paper's experiments through the whole pipeline (docs/EXPERIMENTS.md)."""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+from pathlib import Path
+
+from tools.cli.common import add_config_options, load_cli_config, positive_int, print_json
+
+DEFAULT_OUT = Path("build/experiment")
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "experiment",
+        help="reproduce the paper's experiments (learning curves, adaptive against fixed steps)",
+        description=(
+            "The paper's experiments (section IV) through the real pipeline: the controller, CAN frames on a "
+            "virtual bus, the node boards and the simulation, in lock-step, one walk per roll-out, walks in "
+            "parallel worker processes. Deterministic for the seeds; every finished walk is kept under "
+            "OUT/cache, so an interrupted run resumes where it stopped."
+        ),
+    )
+    xsub = p.add_subparsers(dest="experiment", metavar="EXPERIMENT", required=True)
+
+    def common(sp: argparse.ArgumentParser) -> None:
+        add_config_options(sp)
+        sp.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a configuration value, e.g. controller.learning.noise_alpha=0.5 (repeatable)")
+        sp.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
+        sp.add_argument("--workers", type=int, default=2, help="worker processes (default 2; 0 runs in this process)")
+        sp.add_argument("--mode", choices=("sagittal", "full3d"), default="sagittal", help="simulation mode (default sagittal)")
+        sp.add_argument("--fresh", action="store_true", help="discard the stored walks of OUT/cache first")
+        sp.add_argument("--json", action="store_true", help="print summary.json on stdout")
+        sp.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    def seeds(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+        sp.add_argument("--seeds", type=positive_int, default=1, metavar="N", help="learning runs per start: seeds S..S+N-1 (default 1)")
+        sp.add_argument("--updates", type=positive_int, default=15, help="PI² updates per learning run (default 15)")
+
+    lp = xsub.add_parser("learn", help="online PI² from the paper's starts (Fig. 7)")
+    common(lp)
+    seeds(lp)
+    lp.add_argument("--init", action="append", choices=("A", "B"), metavar="A|B",
+                    help="the paper's starting point: A = (Xhat 0.6, alpha -1.0), B = (Xhat 0.9, alpha -0.4); repeatable (default both)")
+    lp.set_defaults(func=run_learn)
+
+    cp = xsub.add_parser("compare", help="the adaptive gait against fixed step lengths 0.10-0.20 m (Figs. 8, 12)")
+    common(cp)
+    cp.add_argument("--seed", type=int, default=0, help="seed of the compared walks (default 0)")
+    cp.add_argument("--theta", type=float, nargs=2, metavar=("ALPHA", "XHAT"),
+                    help="the adaptive gait's theta (default: the configured controller.compensation)")
+    cp.add_argument("--walks", type=positive_int, default=3, help="walks (seeds) per gait (default 3)")
+    cp.set_defaults(func=run_compare)
+
+    ap = xsub.add_parser("all", help="learning from A and B, then the comparison with the learned theta; figures, CSV, report")
+    common(ap)
+    seeds(ap)
+    ap.add_argument("--walks", type=positive_int, default=3, help="walks (seeds) per gait in the comparison (default 3)")
+    ap.set_defaults(func=run_all)
+
+
+def _plan(args: argparse.Namespace, **kw):
+    from config import parse_override, with_overrides
+    from tools.experiment.experiment import Plan
+    from tools.experiment.runner import ExperimentError
+
+    cfg = load_cli_config(args)
+    if args.set:
+        cfg = with_overrides(cfg, dict(parse_override(s) for s in args.set))
+    if cfg.controller is None or cfg.sim is None:
+        raise ExperimentError("the experiments need the controller and sim sections of the configuration")
+    if args.workers < 0:
+        raise ExperimentError(f"--workers must be >= 0, got {args.workers}")
+    if args.fresh and (args.out / "cache").exists():
+        shutil.rmtree(args.out / "cache")
+    return Plan(cfg=cfg, out=args.out, mode=args.mode, workers=args.workers, **kw)
+
+
+def _finish(args: argparse.Namespace, plan) -> int:
+    from tools.experiment import experiment
+    from tools.experiment.report import write_all
+
+    res = experiment.run(plan, progress=not args.quiet)
+    s = write_all(res, args.out)
+    if args.json:
+        print_json(s)
+    else:
+        print((args.out / "report.md").read_text())
+        print(f"written to {args.out}/: summary.json, report.md, CSV data and PNG figures", file=sys.stderr)
+    return 0
+
+
+def run_learn(args: argparse.Namespace) -> int:
+    plan = _plan(args, seeds=list(range(args.seed, args.seed + args.seeds)), starts=sorted(set(args.init or ["A", "B"])),
+                 updates=args.updates)
+    return _finish(args, plan)
+
+
+def run_compare(args: argparse.Namespace) -> int:
+    plan = _plan(args, seeds=[args.seed], compare=True, compare_walks=args.walks)
+    c = plan.cfg.controller.compensation
+    plan.compare_theta = (args.theta[0], args.theta[1]) if args.theta else (c.alpha, c.xhat_com)
+    return _finish(args, plan)
+
+
+def run_all(args: argparse.Namespace) -> int:
+    plan = _plan(args, seeds=list(range(args.seed, args.seed + args.seeds)), starts=["A", "B"], updates=args.updates,
+                 compare=True, compare_walks=args.walks)
+    return _finish(args, plan)

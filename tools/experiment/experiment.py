@@ -1,0 +1,188 @@
+"""The experiments' orchestration: learning runs and the comparison on one pool, their checks
+against the paper's claims, and the progress line."""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from config import Config
+from tools.experiment.compare import ADAPTIVE, FIXED_LENGTHS_M, GaitStats, compare_jobs, comparison
+from tools.experiment.learn import STARTS, LearningRun, learning_run
+from tools.experiment.runner import ExperimentError, WalkJob, WalkPool
+from tools.experiment.schedule import Run, drive
+
+
+@dataclass
+class Plan:
+    """What to run: learning from ``starts`` for every seed, and/or the comparison."""
+
+    cfg: Config
+    out: Path
+    seeds: list[int] = field(default_factory=lambda: [0])
+    starts: list[str] = field(default_factory=list)
+    updates: int = 15
+    compare: bool = False
+    compare_theta: tuple[float, float] | None = None  # None with learning: the learned one
+    compare_walks: int = 3
+    mode: str = "sagittal"
+    workers: int = 2
+
+    def __post_init__(self) -> None:
+        for s in self.starts:
+            if s not in STARTS:
+                raise ExperimentError(f"unknown start {s!r}: the paper's are {', '.join(STARTS)}")
+        if self.updates < 1:
+            raise ExperimentError(f"updates must be >= 1, got {self.updates}")
+
+    @property
+    def cycles(self) -> int:
+        return self.cfg.controller.learning.steps_per_rollout
+
+    def walks_planned(self) -> int:
+        k = self.cfg.controller.learning.rollouts_per_update
+        learning = len(self.starts) * len(self.seeds) * (self.updates * (k + 1) + 1)
+        return learning + (len(FIXED_LENGTHS_M) + 1) * self.compare_walks * (1 if self.compare else 0)
+
+
+class Progress:
+    """A progress bar of walks on stderr (rewritten in place on a terminal, a line every 5 % otherwise)."""
+
+    def __init__(self, total: int, enabled: bool = True) -> None:
+        self.total, self.done, self.reused = total, 0, 0
+        self.enabled = enabled
+        self.t0 = time.monotonic()
+        self.tty = sys.stderr.isatty()
+        self.last_shown = -1
+
+    def __call__(self, job: WalkJob, result: dict[str, Any], reused: bool) -> None:
+        self.done += 1
+        self.reused += reused
+        if not self.enabled:
+            return
+        frac = self.done / max(self.total, 1)
+        ran = self.done - self.reused
+        elapsed = time.monotonic() - self.t0
+        eta = elapsed / ran * (self.total - self.done) if ran else math.nan
+        bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
+        text = (f"experiment [{bar}] {self.done}/{self.total} walks ({self.reused} reused) "
+                f"{elapsed / 60:4.1f} min" + (f", ~{eta / 60:.1f} min left" if math.isfinite(eta) else "")
+                + f" | {job.gait} seed {job.seed}: {result['cycles_completed']} cycles, {result['end']}")
+        if self.tty:
+            print("\r" + text[:160].ljust(160), end="" if self.done < self.total else "\n", file=sys.stderr, flush=True)
+        elif int(frac * 20) != self.last_shown or self.done == self.total:
+            self.last_shown = int(frac * 20)
+            print(text, file=sys.stderr, flush=True)
+
+
+@dataclass
+class Results:
+    plan: Plan
+    learning: list[LearningRun] = field(default_factory=list)
+    comparison: list[GaitStats] = field(default_factory=list)
+    compare_theta: tuple[float, float] | None = None
+    walks_run: int = 0
+    walks_reused: int = 0
+    wall_time_s: float = 0.0
+
+
+def run(plan: Plan, progress: bool = True) -> Results:
+    """Everything in ``plan`` on one pool of ``plan.workers`` processes (results cached under
+    ``plan.out/cache``: a second call with the same plan runs nothing again)."""
+    t0 = time.monotonic()
+    bar = Progress(plan.walks_planned(), enabled=progress)
+    results = Results(plan)
+    with WalkPool(plan.cfg, plan.workers, plan.out / "cache", on_done=bar) as pool:
+        runs: dict[str, Run] = {
+            f"{start}-s{seed}": learning_run(plan.cfg, start, seed, updates=plan.updates, mode=plan.mode)
+            for seed in plan.seeds for start in plan.starts
+        }
+        learned = drive(pool, runs)
+        results.learning = [learned[name] for name in runs]
+        if plan.compare:
+            if plan.compare_theta is None and not results.learning:
+                raise ExperimentError("the comparison needs a theta: learn first, or give one")
+            theta = plan.compare_theta or learned_theta(results.learning)
+            results.compare_theta = theta
+            jobs = compare_jobs(theta, seed=plan.seeds[0], walks=plan.compare_walks, cycles=plan.cycles, mode=plan.mode)
+            results.comparison = drive(pool, {"compare": comparison(jobs)})["compare"]
+        results.walks_run, results.walks_reused = pool.ran, pool.reused
+    results.wall_time_s = time.monotonic() - t0
+    return results
+
+
+def learned_theta(runs: list[LearningRun]) -> tuple[float, float]:
+    """The adaptive gait to compare: the deployed theta of the learning run whose last noise-free
+    walk cost least."""
+    best = min(runs, key=lambda r: r.final.evaluation_cost)
+    return best.final.evaluation_theta
+
+
+# -- the paper's claims, checked ----------------------------------------------------------------
+
+
+def learning_checks(runs: list[LearningRun], n: int, max_updates: int = 15) -> dict[str, Any]:
+    """Per seed: do A and B end within 10 % of each other, reach N of N stable cycles, and cut
+    the noise-free cost by 30 % within ``max_updates`` updates."""
+    by_seed: dict[int, dict[str, LearningRun]] = {}
+    for r in runs:
+        by_seed.setdefault(r.seed, {})[r.start] = r
+    per_run = {r.name: _run_check(r, n, max_updates) for r in runs}
+    per_seed = {}
+    for seed, starts in sorted(by_seed.items()):
+        if {"A", "B"} <= set(starts):
+            a, b = np.array(starts["A"].final.evaluation_theta), np.array(starts["B"].final.evaluation_theta)
+            rel = np.abs(a - b) / np.maximum(np.abs((a + b) / 2), 1e-9)
+            per_seed[seed] = {"theta_A": a.tolist(), "theta_B": b.tolist(), "relative_difference": np.round(rel, 4).tolist(),
+                              "same_within_10_percent": bool((rel <= 0.10).all())}
+    every = [c for c in per_run.values()]
+    return {
+        "runs": per_run,
+        "seeds": per_seed,
+        "all_converge_together": bool(per_seed) and all(s["same_within_10_percent"] for s in per_seed.values()),
+        "all_reach_full_cycles": bool(every) and all(c["reaches_full_cycles"] for c in every),
+        "all_cut_cost_30_percent": bool(every) and all(c["cost_cut_30_percent"] for c in every),
+    }
+
+
+def _run_check(r: LearningRun, n: int, max_updates: int) -> dict[str, Any]:
+    start_cost = r.updates[0].evaluation_cost
+    within = r.updates[: max_updates + 1]
+    best_cut = max((1 - u.evaluation_cost / start_cost) if start_cost > 0 else 0.0 for u in within)
+    cut_at = next((u.index for u in within if start_cost > 0 and 1 - u.evaluation_cost / start_cost >= 0.30), None)
+    full_at = next((u.index for u in within if u.evaluation_cycles >= n), None)
+    return {
+        "start_cost": start_cost, "final_cost": r.final.evaluation_cost,
+        "final_cut": round(1 - r.final.evaluation_cost / start_cost, 4) if start_cost > 0 else None,
+        "best_cut": round(best_cut, 4), "cost_cut_30_percent": cut_at is not None, "cut_30_at_update": cut_at,
+        "reaches_full_cycles": r.final.evaluation_cycles >= n, "first_full_at_update": full_at,
+        "final_theta": list(r.final.evaluation_theta), "final_cycles": r.final.evaluation_cycles,
+        "rejections": len(r.rejections), "learning_disabled": r.learning_disabled,
+    }
+
+
+def comparison_checks(gaits: list[GaitStats], n: int) -> dict[str, Any]:
+    """The adaptive gait's stick force below every fixed length that never falls; every walk at
+    the longest fixed length falls within 6 cycles while the adaptive gait walks N of N."""
+    s = {g.gait: g.summary(n) for g in gaits}
+    adaptive = s.get(ADAPTIVE)
+    if adaptive is None:
+        return {}
+    safe = [k for k, v in s.items() if k != ADAPTIVE and v["falls"] == 0]
+    lower = all(adaptive["stick_force_mean_n"] < s[k]["stick_force_mean_n"] for k in safe)
+    longest = max((k for k in s if k != ADAPTIVE), key=float, default=None)
+    long_falls = (longest is not None and s[longest]["falls"] == s[longest]["walks"]
+                  and max(s[longest]["cycles_at_fall"]) < 6)
+    return {
+        "non_falling_fixed": safe,
+        "adaptive_force_below_every_non_falling_fixed": bool(safe) and lower,
+        "adaptive_walks_full": adaptive["falls"] == 0,
+        "longest_fixed": longest,
+        "longest_fixed_falls_within_6_cycles": bool(long_falls),
+    }

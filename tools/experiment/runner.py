@@ -1,0 +1,213 @@
+"""Walks through the whole pipeline as jobs: run in parallel worker processes, each result stored
+once so an interrupted experiment resumes without redoing it.
+
+A :class:`WalkJob` is one walk of the controller (a fixed step length, or the compensation with a
+given theta), the CAN frames, the node boards and the simulation, in lock-step on its own virtual
+bus and world (:func:`tools.pipeline.walk`): deterministic for its seed, so a result is a pure
+function of the job, the configuration and the software. :class:`WalkPool` runs jobs in worker
+processes and keeps each result as a JSON file named by that key in the experiment's cache
+directory; a job whose file exists is not run again.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import hashlib
+import json
+import math
+import multiprocessing
+import os
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from config import AiderError, Config, config_hash
+
+RESULT_FORMAT = "aider-exo.walk-result/1"
+
+
+class ExperimentError(AiderError):
+    """An experiment that cannot run or resume (a bad option, an unreadable result file, ...)."""
+
+
+@dataclass(frozen=True)
+class WalkJob:
+    """One walk: ``fixed_m`` (every step that long, no compensation) or ``theta`` = (alpha,
+    Xhat_CoM) of the compensation; ``seed`` is the patient's stick placement and sensor noise."""
+
+    seed: int
+    cycles: int
+    fixed_m: float | None = None
+    theta: tuple[float, float] | None = None
+    mode: str = "sagittal"
+
+    def __post_init__(self) -> None:
+        if (self.fixed_m is None) == (self.theta is None):
+            raise ExperimentError("a walk job needs exactly one of fixed_m and theta")
+
+    @property
+    def gait(self) -> str:
+        if self.fixed_m is not None:
+            return f"fixed {self.fixed_m:.2f} m"
+        return f"theta ({self.theta[0]:.3f}, {self.theta[1]:.3f})"
+
+    def key(self, cfg_digest: str) -> str:
+        """The name of this job's result: its fields, the configuration and the software version."""
+        text = json.dumps({"job": asdict(self), "config": cfg_digest, "software": _software_version()}, sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+def _software_version() -> str:
+    try:
+        return metadata.version("aider-exo")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def run_walk(cfg: Config, job: WalkJob) -> dict[str, Any]:
+    """Walk ``job`` and return its result (JSON-ready). Upper-body torque and falls are the
+    simulation's ground truth; stick forces and step lengths are what the controller measured."""
+    from controller.factory import step_bounds
+    from controller.policy import StepPolicy, cycle_costs
+    from tools.pipeline import walk
+
+    bounds = step_bounds(cfg.controller)
+    policy = StepPolicy(bounds, fixed_m=job.fixed_m) if job.fixed_m is not None else StepPolicy(bounds, theta=job.theta)
+    hosts: list[Any] = []
+    outcome = walk(cfg, cycles=job.cycles, seed=job.seed, mode=job.mode, policy=policy,
+                   on_tick=lambda _r, _c, host: hosts.append(host) if not hosts else None)
+    truth_steps = [s for s in hosts[0].patient.steps if s.landed] if hosts else []
+    landed = outcome.landed
+    forces = [s.mean_stick_force_n for s in landed]
+    torques = [s.mean_arm_torque_nm for s in truth_steps]
+    complete = len(landed) >= 2 * job.cycles
+    return {
+        "format": RESULT_FORMAT,
+        "job": asdict(job),
+        "cycles_completed": outcome.cycles_completed,
+        "steps_completed": len(landed),
+        "complete": complete,
+        # a walk that stalled or faulted without falling did not walk its cycles either: for the
+        # learner it ends like a fall, after the cycles it completed
+        "fell": not complete,
+        "end": ("walked" if complete else outcome.fall_reason or (f"fault {outcome.fault}" if outcome.fault else "stalled")),
+        "cycle_costs": cycle_costs(forces),
+        "step_lengths_m": [round(s.length_m, 5) for s in landed],
+        "step_x_ratio": [round(s.x_ratio, 5) for s in landed],
+        "step_stick_force_n": [round(f, 4) for f in forces],
+        "step_arm_torque_nm": [round(t, 4) for t in torques],
+        "mean_stick_force_n": _mean(forces),
+        "mean_arm_torque_nm": _mean(torques),
+        "x_ratio_mae": None if not math.isfinite(outcome.ratio_mae) else round(outcome.ratio_mae, 5),
+        "sim_time_s": round(outcome.sim_time_s, 2),
+        "wall_time_s": round(outcome.wall_time_s, 2),
+    }
+
+
+def _mean(values: list[float]) -> float | None:
+    return round(float(np.mean(values)), 4) if values else None
+
+
+# -- the pool ---------------------------------------------------------------------------------
+
+_worker_cfg: Config | None = None
+
+
+def _init_worker(cfg: Config) -> None:
+    global _worker_cfg
+    _worker_cfg = cfg
+
+
+def _run_in_worker(job: WalkJob) -> dict[str, Any]:
+    assert _worker_cfg is not None
+    return run_walk(_worker_cfg, job)
+
+
+class WalkPool:
+    """Runs walk jobs in ``workers`` processes (0: in this process), storing every result under
+    ``cache_dir`` by its key. ``submit`` returns a future; a stored result resolves at once."""
+
+    def __init__(self, cfg: Config, workers: int, cache_dir: Path | None,
+                 on_done: Callable[[WalkJob, dict[str, Any], bool], None] | None = None) -> None:
+        if workers < 0:
+            raise ExperimentError(f"workers must be >= 0, got {workers}")
+        self.cfg = cfg
+        self.digest = config_hash(cfg)
+        self.cache_dir = cache_dir
+        self.on_done = on_done
+        self.ran = 0
+        self.reused = 0
+        if cache_dir is not None:
+            cache_dir.mkdir(parents=True, exist_ok=True)
+        self._executor = (
+            cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_init_worker, initargs=(cfg,))
+            if workers > 0 else None
+        )
+
+    def __enter__(self) -> WalkPool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._executor is not None:
+            self._executor.shutdown(wait=True, cancel_futures=True)
+            self._executor = None
+
+    def _path(self, job: WalkJob) -> Path | None:
+        return None if self.cache_dir is None else self.cache_dir / f"{job.key(self.digest)}.json"
+
+    def stored(self, job: WalkJob) -> dict[str, Any] | None:
+        path = self._path(job)
+        if path is None or not path.exists():
+            return None
+        try:
+            result = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ExperimentError(f"{path}: unreadable walk result ({exc}); delete it to run that walk again") from None
+        if not isinstance(result, dict) or result.get("format") != RESULT_FORMAT or result.get("job") != json.loads(json.dumps(asdict(job))):
+            raise ExperimentError(f"{path}: not the result of {job}; delete it to run that walk again")
+        return result
+
+    def submit(self, job: WalkJob) -> cf.Future:
+        future: cf.Future = cf.Future()
+        result = self.stored(job)
+        if result is not None:
+            self.reused += 1
+            future.set_result(result)
+            if self.on_done is not None:
+                self.on_done(job, result, True)
+            return future
+        if self._executor is None:
+            inner: cf.Future = cf.Future()
+            inner.set_result(run_walk(self.cfg, job))
+        else:
+            inner = self._executor.submit(_run_in_worker, job)
+
+        def finished(f: cf.Future) -> None:
+            if f.exception() is not None:
+                future.set_exception(f.exception())
+                return
+            result = f.result()
+            self._store(job, result)
+            self.ran += 1
+            if self.on_done is not None:
+                self.on_done(job, result, False)
+            future.set_result(result)
+
+        inner.add_done_callback(finished)
+        return future
+
+    def _store(self, job: WalkJob, result: dict[str, Any]) -> None:
+        path = self._path(job)
+        if path is None:
+            return
+        tmp = path.with_suffix(f".tmp{os.getpid()}")
+        tmp.write_text(json.dumps(result) + "\n")
+        os.replace(tmp, path)  # a result is either whole or absent: an interrupted write is redone
