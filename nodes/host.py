@@ -136,6 +136,7 @@ class NodesHost:
             m.frame_id: self.ports[m.receivers[0]] for m in catalog.messages if m.family == "JOINT_COMMAND"
         }
         self._by_id = {p.node_id: p for p in self.ports.values()}
+        self._scale_cache: dict[int, tuple[tuple[float, float, str] | None, ...]] = {}  # constant per message (the DBC)
         self.start_ns = self.clock.now_ns()
         self.own_tick = -1  # real time: the node's own tick counter
         self.last_sync_tick = -1
@@ -306,14 +307,24 @@ class NodesHost:
         else:
             raise NodesError(f"{spec.name}: no sensor source for message family {family}")
         out = []
-        for sig, value in zip(spec.signals, raw):
-            if sig.choices is None:
+        for scale, value in zip(self._scales(spec), raw):
+            if scale is not None:
+                lo, hi, key = scale
                 value = float(value)
-                if not sig.minimum <= value <= sig.maximum:  # the sensor saturates at its full scale
-                    self.stats.saturated[f"{spec.name}.{sig.name}"] += 1
-                    value = min(max(value, sig.minimum), sig.maximum)
+                if not lo <= value <= hi:  # the sensor saturates at its full scale
+                    self.stats.saturated[key] += 1
+                    value = min(max(value, lo), hi)
             out.append(value)
         return tuple(out)
+
+    def _scales(self, spec: MessageSpec) -> tuple[tuple[float, float, str] | None, ...]:
+        """Per signal of ``spec``: its full scale and saturation counter key, None for an enumeration."""
+        scales = self._scale_cache.get(spec.frame_id)
+        if scales is None:
+            scales = tuple(None if sig.choices is not None else (sig.minimum, sig.maximum, f"{spec.name}.{sig.name}")
+                           for sig in spec.signals)
+            self._scale_cache[spec.frame_id] = scales
+        return scales
 
     def _send(self, port: NodePort, spec: MessageSpec, values: tuple[Any, ...], tick: int) -> None:
         try:
