@@ -164,6 +164,12 @@ def test_a_walk_that_runs_out_of_time_is_a_stall_not_a_fall():
     assert summary["mean_stick_force_n"] is None and summary["step_length_m"]["mean"] is None
 
 
+def test_a_walk_without_a_landing_for_stall_s_is_a_stall():
+    outcome = walk(BASE, cycles=1, seed=0, mode="sagittal", stall_s=1.5)
+    assert outcome.stalled and not outcome.fell and outcome.landed == []
+    assert outcome.ticks == 76  # 1.5 s of 20 ms ticks after the first
+
+
 def test_walk_outcome_counts_landed_steps_only():
     def s(i, landed, force):
         r = StepRecord(index=i, leg="rl"[i % 2], start_tick=10 * i, swing_tick=10 * i + 5, end_tick=10 * i + 9,

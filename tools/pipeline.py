@@ -116,17 +116,25 @@ def default_max_time_s(cycles: int) -> float:
     return 20.0 + 15.0 * cycles
 
 
+#: simulated seconds without a step landing after which a walk counts as stalled (its slowest
+#: steps take about 20 s: stick moves, a lean that waits for the swing foot to come free)
+STALL_S = 40.0
+
+
 def drive(
     loop: LockstepLoop, outcome: WalkOutcome, *, cycles: int, max_ticks: int,
     truth_ratio: Callable[[], float] | None = None, fallen: Callable[[], str | None] | None = None,
-    on_tick: TickHook | None = None,
+    on_tick: TickHook | None = None, stall_s: float = STALL_S,
 ) -> TickResult | None:
-    """Run ``loop`` with walking asked until ``cycles`` gait cycles have landed, a fall, a FAULT, or
-    ``max_ticks``; fills ``outcome`` (the steps are the core's own list)."""
+    """Run ``loop`` with walking asked until ``cycles`` gait cycles have landed, a fall, a FAULT,
+    ``max_ticks``, or ``stall_s`` of simulated time without a step landing (both a stall); fills
+    ``outcome`` (the steps are the core's own list)."""
     core = loop.core
     core.request_walk()
     result = None
-    for _ in range(max_ticks):
+    stall_ticks = int(stall_s * 1000 / TICK_MS)
+    landed, last_landing = 0, 0
+    for tick in range(max_ticks):
         result = loop.step()
         if truth_ratio is not None and result.estimate is not None:
             truth = truth_ratio()
@@ -146,6 +154,11 @@ def drive(
             break
         if len(outcome.landed) >= 2 * cycles:
             break
+        if len(outcome.landed) != landed:
+            landed, last_landing = len(outcome.landed), tick
+        elif tick - last_landing >= stall_ticks:
+            outcome.stalled = True
+            break
     else:
         outcome.stalled = True
     outcome.final_state = result.state.name if result else ""
@@ -160,11 +173,11 @@ def drive(
 def walk(
     cfg: Config, *, cycles: int, seed: int, mode: str = "sagittal", policy: StepPolicy | None = None,
     max_time_s: float | None = None, on_tick: Callable[[TickResult, ControllerCore, Any], None] | None = None,
-    channel: str | None = None, telemetry: TelemetryLog | None = None,
+    channel: str | None = None, telemetry: TelemetryLog | None = None, stall_s: float = STALL_S,
 ) -> WalkOutcome:
     """Walk ``cycles`` gait cycles (a left and a right step each) with everything in this process;
-    ends early at a fall, a controller fault, or ``max_time_s`` of simulated time (default
-    :func:`default_max_time_s`: a stall). Deterministic for ``seed``. ``on_tick(result, core,
+    ends early at a fall, a controller fault, or a stall: ``max_time_s`` of simulated time (default
+    :func:`default_max_time_s`) or ``stall_s`` without a step landing. Deterministic for ``seed``. ``on_tick(result, core,
     host)`` sees the nodes' host too (the simulation, for recording)."""
     from nodes.host import NodesHost
 
@@ -186,7 +199,7 @@ def walk(
                 loop, outcome, cycles=cycles, max_ticks=int(max_time_s * 1000 / TICK_MS),
                 truth_ratio=lambda: host.truth()["x_ratio"],
                 fallen=lambda: host.patient.fall,
-                on_tick=None if on_tick is None else (lambda r, c: on_tick(r, c, host)),
+                on_tick=None if on_tick is None else (lambda r, c: on_tick(r, c, host)), stall_s=stall_s,
             )
             outcome.sim_time_s = host.patient.t
         finally:
