@@ -222,7 +222,7 @@ def test_the_telemetry_log_has_its_schema_and_the_gait_fields_filled_during_swin
 
 SUMMARY_FIELDS = {
     "mode", "seed", "policy", "theta", "cycles_asked", "cycles_completed", "steps_completed", "falls", "fall_reason",
-    "fault", "stalled", "final_state", "mean_stick_force_n", "step_length_m", "x_ratio_mae", "x_ratio_samples",
+    "fault", "stalled", "final_state", "mean_stick_force_n", "mean_arm_torque_nm", "step_length_m", "x_ratio_mae", "x_ratio_samples",
     "sim_time_s", "wall_time_s", "ticks", "receiver", "timing", "steps", "bus", "telemetry",
 }
 
@@ -237,6 +237,7 @@ def test_aider_exo_walk_prints_its_summary_as_json(capsys, tmp_path):
     assert SUMMARY_FIELDS <= set(s)
     assert s["cycles_asked"] == 1 and s["cycles_completed"] == 1 and s["steps_completed"] == 2
     assert s["falls"] == 0 and s["fall_reason"] is None and not s["stalled"]
+    assert 0 < s["mean_arm_torque_nm"] < 2 * (80 + 60 + 60)  # six arm joints, each within its strength
     assert s["mode"] == "sagittal" and s["seed"] == 0 and s["policy"] == "compensated" and s["bus"] == "virtual (in-process)"
     assert s["mean_stick_force_n"] > 0 and s["x_ratio_mae"] <= GOAL_RATIO_MAE and s["x_ratio_samples"] > 0
     assert s["receiver"]["rejected"] == 0 and s["receiver"]["lost"] == 0

@@ -52,6 +52,7 @@ class WalkOutcome:
     wall_time_s: float = 0.0
     ticks: int = 0
     ratio_errors: list[float] = field(default_factory=list)  # |estimate - truth| per tick where both exist
+    arm_torques_nm: list[float] = field(default_factory=list)  # ground truth: mean upper-body torque of each landed step
     events: list[str] = field(default_factory=list)
     receiver: dict[str, Any] = field(default_factory=dict)
     theta: tuple[float, float] | None = None
@@ -69,6 +70,10 @@ class WalkOutcome:
     def mean_stick_force_n(self) -> float:
         forces = [s.mean_stick_force_n for s in self.landed]
         return float(np.mean(forces)) if forces else math.nan
+
+    @property
+    def mean_arm_torque_nm(self) -> float:
+        return float(np.mean(self.arm_torques_nm)) if self.arm_torques_nm else math.nan
 
     @property
     def ratio_mae(self) -> float:
@@ -89,6 +94,7 @@ class WalkOutcome:
             "stalled": self.stalled,
             "final_state": self.final_state,
             "mean_stick_force_n": _round(self.mean_stick_force_n, 2),
+            "mean_arm_torque_nm": _round(self.mean_arm_torque_nm, 2),
             "step_length_m": {"mean": _round(float(np.mean(lengths)) if lengths else math.nan),
                               "min": _round(min(lengths, default=math.nan)), "max": _round(max(lengths, default=math.nan))},
             "x_ratio_mae": _round(self.ratio_mae),
@@ -202,6 +208,8 @@ def walk(
                 on_tick=None if on_tick is None else (lambda r, c: on_tick(r, c, host)), stall_s=stall_s,
             )
             outcome.sim_time_s = host.patient.t
+            # the simulation's own steps (foot contacts): the six arm joints' absolute torques, summed
+            outcome.arm_torques_nm = [st.mean_arm_torque_nm for st in host.patient.steps if st.landed]
         finally:
             host.close()
     outcome.wall_time_s = (clock.now_ns() - t0) / 1e9

@@ -160,7 +160,8 @@ def _summary_text(s: dict[str, Any]) -> str:
         f"{s['mode']} walk, {s['policy']} step length{'' if s['theta'] is None else ' theta ' + str(s['theta'])}, "
         f"seed {s['seed']}: {s['cycles_completed']} of {s['cycles_asked']} gait cycles ({s['steps_completed']} steps), {fall}\n"
         f"  step length {lengths['mean']} m (min {lengths['min']}, max {lengths['max']}), mean stick force "
-        f"{s['mean_stick_force_n']} N, X_CoM/X_SP error {s['x_ratio_mae']} (mean over {s['x_ratio_samples']} ticks)\n"
+        f"{s['mean_stick_force_n']} N, upper-body torque {s['mean_arm_torque_nm']} N·m, X_CoM/X_SP error "
+        f"{s['x_ratio_mae']} (mean over {s['x_ratio_samples']} ticks)\n"
         f"  {s['sim_time_s']} s simulated in {s['wall_time_s']} s, {s['ticks']} ticks on {s['bus']}; frames rejected "
         f"{s['receiver'].get('rejected', 0)}, lost {s['receiver'].get('lost', 0)}"
     )

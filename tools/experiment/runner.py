@@ -77,13 +77,10 @@ def run_walk(cfg: Config, job: WalkJob) -> dict[str, Any]:
 
     bounds = step_bounds(cfg.controller)
     policy = StepPolicy(bounds, fixed_m=job.fixed_m) if job.fixed_m is not None else StepPolicy(bounds, theta=job.theta)
-    hosts: list[Any] = []
-    outcome = walk(cfg, cycles=job.cycles, seed=job.seed, mode=job.mode, policy=policy,
-                   on_tick=lambda _r, _c, host: hosts.append(host) if not hosts else None)
-    truth_steps = [s for s in hosts[0].patient.steps if s.landed] if hosts else []
+    outcome = walk(cfg, cycles=job.cycles, seed=job.seed, mode=job.mode, policy=policy)
     landed = outcome.landed
     forces = [s.mean_stick_force_n for s in landed]
-    torques = [s.mean_arm_torque_nm for s in truth_steps]
+    torques = outcome.arm_torques_nm
     complete = len(landed) >= 2 * job.cycles
     return {
         "format": RESULT_FORMAT,
