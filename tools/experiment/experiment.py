@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import sys
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -13,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from config import Config
+from protocol.clock import Clock, MonotonicClock
 from tools.experiment.compare import ADAPTIVE, FIXED_LENGTHS_M, GaitStats, compare_jobs, comparison
 from tools.experiment.learn import STARTS, LearningRun, learning_run
 from tools.experiment.runner import ExperimentError, WalkJob, WalkPool
@@ -54,10 +54,11 @@ class Plan:
 class Progress:
     """A progress bar of walks on stderr (rewritten in place on a terminal, a line every 5 % otherwise)."""
 
-    def __init__(self, total: int, enabled: bool = True) -> None:
+    def __init__(self, total: int, enabled: bool = True, clock: Clock | None = None) -> None:
         self.total, self.done, self.reused = total, 0, 0
         self.enabled = enabled
-        self.t0 = time.monotonic()
+        self.clock = clock or MonotonicClock()
+        self.t0 = self.clock.now_ns()
         self.tty = sys.stderr.isatty()
         self.last_shown = -1
 
@@ -68,7 +69,7 @@ class Progress:
             return
         frac = self.done / max(self.total, 1)
         ran = self.done - self.reused
-        elapsed = time.monotonic() - self.t0
+        elapsed = (self.clock.now_ns() - self.t0) / 1e9
         eta = elapsed / ran * (self.total - self.done) if ran else math.nan
         bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
         text = (f"experiment [{bar}] {self.done}/{self.total} walks ({self.reused} reused) "
@@ -95,8 +96,9 @@ class Results:
 def run(plan: Plan, progress: bool = True) -> Results:
     """Everything in ``plan`` on one pool of ``plan.workers`` processes (results cached under
     ``plan.out/cache``: a second call with the same plan runs nothing again)."""
-    t0 = time.monotonic()
-    bar = Progress(plan.walks_planned(), enabled=progress)
+    clock = MonotonicClock()
+    t0 = clock.now_ns()
+    bar = Progress(plan.walks_planned(), enabled=progress, clock=clock)
     results = Results(plan)
     with WalkPool(plan.cfg, plan.workers, plan.out / "cache", on_done=bar) as pool:
         runs: dict[str, Run] = {
@@ -113,7 +115,7 @@ def run(plan: Plan, progress: bool = True) -> Results:
             jobs = compare_jobs(theta, seed=plan.seeds[0], walks=plan.compare_walks, cycles=plan.cycles, mode=plan.mode)
             results.comparison = drive(pool, {"compare": comparison(jobs)})["compare"]
         results.walks_run, results.walks_reused = pool.ran, pool.reused
-    results.wall_time_s = time.monotonic() - t0
+    results.wall_time_s = (clock.now_ns() - t0) / 1e9
     return results
 
 
