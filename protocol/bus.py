@@ -14,7 +14,8 @@ from pathlib import Path
 from typing import Any
 
 import can
-from can.interfaces.virtual import VirtualBus
+from can.bus import LOG as _LOG
+from can.interfaces.virtual import VirtualBus, channels_lock
 
 from config import BusConfig
 from protocol.clock import epoch_s
@@ -32,9 +33,32 @@ class InProcessBus(VirtualBus):
 
     :class:`~can.interfaces.virtual.VirtualBus` deep-copies every message once per receiver
     (``copy.deepcopy``: about 15 us a frame, a sixth of an in-process walk's bus time); this
-    copies the fields and the data bytes, which is all a deep copy of a message holds. A receive
-    with timeout 0 (a poll, as the lock-step walk does) takes the queue's head without a deadline.
+    copies the fields and the data bytes, which is all a deep copy of a message holds. An
+    unbounded receive queue (``rx_queue_size`` 0, the default) is a :class:`queue.SimpleQueue`
+    (C, one lock) instead of VirtualBus's :class:`queue.Queue` (three conditions per put and get);
+    both are FIFO and thread-safe, and a bounded queue stays VirtualBus's. A receive with timeout
+    0 (a poll, as the lock-step walk does) without filters takes the queue's head without
+    :meth:`can.BusABC.recv`'s deadline loop.
     """
+
+    def __init__(self, channel: Any = "channel-0", **kwargs: Any) -> None:
+        super().__init__(channel=channel, **kwargs)
+        if not kwargs.get("rx_queue_size", 0):
+            with channels_lock:
+                fast: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
+                self.channel[self.channel.index(self.queue)] = fast
+                self.queue = fast  # type: ignore[assignment]  # same put/get/get_nowait
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        if timeout != 0 or self._filters is not None:
+            return super().recv(timeout)
+        self._check_if_open()
+        try:  # a poll: what BusABC.recv returns for timeout 0 without filters
+            msg = self.queue.get_nowait()
+        except queue.Empty:
+            return None
+        _LOG.log(self.RECV_LOGGING_LEVEL, "Received: %s", msg)
+        return msg
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         if timeout != 0:
