@@ -31,14 +31,19 @@ import numpy as np
 SIDES = ("l", "r")
 
 
+def rpy_rows(roll: float, pitch: float, yaw: float = 0.0) -> tuple[tuple[float, float, float], ...]:
+    """The rows of :func:`rot_rpy` as floats (no array: the estimator's per-tick arithmetic)."""
+    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
+    return (
+        (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
+        (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
+        (-sp, cp * sr, cp * cr),
+    )
+
+
 def rot_rpy(roll: float, pitch: float, yaw: float = 0.0) -> np.ndarray:
     """Rz(yaw) Ry(pitch) Rx(roll): the IMUs' roll-pitch-yaw convention."""
-    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
+    return np.array(rpy_rows(roll, pitch, yaw))
 
 
 @dataclass(frozen=True)
@@ -77,66 +82,89 @@ class StateEstimator:
     _elbow: list[float] = field(default_factory=lambda: [1.0, 1.0])
     _floor_z: float | None = None
 
-    def update(self, m: Measurements) -> Estimate:
-        b, legs = self.body, self.legs
-        roll, pitch, yaw = (float(v) for v in m.trunk_rpy_rad)
-        trunk = rot_rpy(roll, pitch)
-        feet_loaded = tuple(bool(m.heel_force_n[i] + m.toe_force_n[i] > b.foot_loaded_n) for i in range(2))
-        sticks_loaded = tuple(bool(m.stick_force_n[i] > b.stick_loaded_n) for i in range(2))
-        masses: list[float] = [b.trunk_kg]
-        points: list[np.ndarray] = [trunk @ np.array([b.trunk_com_xz_m[0], 0.0, b.trunk_com_xz_m[1]])]
+    def __post_init__(self) -> None:
+        b = self.body
+        # the segments' masses in the order of update's points (trunk, each leg's thigh, shank and
+        # foot, each arm's upper arm and forearm) and their total, numpy's sum as over an array
+        self._masses = (b.trunk_kg, *(b.thigh_kg, b.shank_kg, b.foot_kg) * 2, *(b.upper_arm_kg, b.forearm_kg) * 2)
+        self._mass_total = float(np.asarray(self._masses).sum())
 
-        ankles = np.zeros((2, 3))
-        q = m.joint_position_rad
+    def update(self, m: Measurements) -> Estimate:
+        """One tick's estimate. Three-element vectors are plain floats (numpy's call overhead is
+        most of the cost on arrays this small); the rotations by the trunk are one batched numpy
+        product, the same per-vector arithmetic as ``trunk @ v`` for each."""
+        b, legs = self.body, self.legs
+        roll, pitch, yaw = m.trunk_rpy_rad.tolist()
+        heel, toe, stick_force = m.heel_force_n.tolist(), m.toe_force_n.tolist(), m.stick_force_n.tolist()
+        feet_loaded = tuple(heel[i] + toe[i] > b.foot_loaded_n for i in range(2))
+        sticks_loaded = tuple(stick_force[i] > b.stick_loaded_n for i in range(2))
+        # in the trunk's frame: its CoM; per leg the hip, the thigh's and the shank's axes; per arm the shoulder
+        sx, sy, sz = b.shoulder_xyz_m
+        body_vectors = [[b.trunk_com_xz_m[0], 0.0, b.trunk_com_xz_m[1]]]
+        q = m.joint_position_rad.tolist()
         for i, side in enumerate(SIDES):
             sign = 1.0 if side == "l" else -1.0
-            hip_q, knee_q = float(q[2 * i]), float(q[2 * i + 1])
-            hip = trunk @ np.array([0.0, sign * b.hip_half_width_m, 0.0])
-            thigh = trunk @ np.array([math.sin(hip_q), 0.0, -math.cos(hip_q)])
-            shank = trunk @ np.array([math.sin(hip_q - knee_q), 0.0, -math.cos(hip_q - knee_q)])
-            knee = hip + legs.thigh_m * thigh
-            ankles[i] = knee + legs.shank_m * shank
-            masses += [b.thigh_kg, b.shank_kg, b.foot_kg]
-            points += [hip + b.thigh_com_m * thigh, knee + b.shank_com_m * shank,
-                       ankles[i] + np.array([b.foot_com_xz_m[0], 0.0, b.foot_com_xz_m[1]])]
+            hip_q, knee_q = q[2 * i], q[2 * i + 1]
+            body_vectors += [[0.0, sign * b.hip_half_width_m, 0.0], [math.sin(hip_q), 0.0, -math.cos(hip_q)],
+                             [math.sin(hip_q - knee_q), 0.0, -math.cos(hip_q - knee_q)]]
+        body_vectors += [[sx, sign * sy, sz] for sign in (1.0, -1.0)]
+        rotated = (rot_rpy(roll, pitch) @ np.array(body_vectors)[:, :, None])[:, :, 0].tolist()
+        points = [rotated[0]]
+
+        ankles = []
+        fx, fz = b.foot_com_xz_m
+        for i in range(2):
+            hip, thigh, shank = rotated[1 + 3 * i: 4 + 3 * i]
+            knee = [hip[j] + legs.thigh_m * thigh[j] for j in range(3)]
+            ankle = [knee[j] + legs.shank_m * shank[j] for j in range(3)]
+            ankles.append(ankle)
+            points += [[hip[j] + b.thigh_com_m * thigh[j] for j in range(3)],
+                       [knee[j] + b.shank_com_m * shank[j] for j in range(3)],
+                       [ankle[0] + fx, ankle[1] + 0.0, ankle[2] + fz]]
         loaded_z = [ankles[i][2] - legs.ankle_height_m for i in range(2) if feet_loaded[i]]
         if loaded_z:
             self._floor_z = float(np.mean(loaded_z))
-        floor_z = self._floor_z if self._floor_z is not None else float(ankles[:, 2].min() - legs.ankle_height_m)
+        floor_z = self._floor_z if self._floor_z is not None else min(ankles[0][2], ankles[1][2]) - legs.ankle_height_m
 
-        tips = np.zeros((2, 3))
+        tips = []
         on_floor = [False, False]
-        for i, side in enumerate(SIDES):
-            sign = 1.0 if side == "l" else -1.0
-            sx, sy, sz = b.shoulder_xyz_m
-            shoulder = trunk @ np.array([sx, sign * sy, sz])
-            s_roll, s_pitch, s_yaw = (float(v) for v in m.stick_rpy_rad[i])
-            forearm = rot_rpy(s_roll, s_pitch, s_yaw - yaw)  # relative to the trunk's heading
-            u, x_f = -forearm[:, 2], forearm[:, 0]  # stick axis (toward the tip) and forearm x
+        stick_rpy = m.stick_rpy_rad.tolist()
+        for i in range(2):
+            shoulder = rotated[7 + i]
+            s_roll, s_pitch, s_yaw = stick_rpy[i]
+            forearm = rpy_rows(s_roll, s_pitch, s_yaw - yaw)  # relative to the trunk's heading
+            u = [-forearm[j][2] for j in range(3)]  # stick axis (toward the tip)
+            x_f = [forearm[j][0] for j in range(3)]  # forearm x
             # upper arm w = cos e u - sin e x_f; the tip at the floor: A cos e + B sin e = C
             a_, b_ = b.upper_arm_m * u[2], -b.upper_arm_m * x_f[2]
             c_ = floor_z + b.tip_radius_m - shoulder[2] - b.elbow_to_tip_m * u[2]
             e, on_floor[i] = self._elbow_angle(i, a_, b_, c_)
-            w = math.cos(e) * u - math.sin(e) * x_f
-            elbow = shoulder + b.upper_arm_m * w
-            tips[i] = elbow + b.elbow_to_tip_m * u - np.array([0.0, 0.0, b.tip_radius_m])
-            masses += [b.upper_arm_kg, b.forearm_kg]
-            points += [shoulder + b.upper_arm_com_m * w, elbow + b.forearm_com_m * u]
-        weights = np.asarray(masses)
-        com = (weights[:, None] * np.asarray(points)).sum(axis=0) / weights.sum()
+            ce, se = math.cos(e), math.sin(e)
+            w = [ce * u[j] - se * x_f[j] for j in range(3)]
+            elbow = [shoulder[j] + b.upper_arm_m * w[j] for j in range(3)]
+            tip = [elbow[j] + b.elbow_to_tip_m * u[j] for j in range(3)]
+            tip[2] -= b.tip_radius_m
+            tips.append(tip)
+            points += [[shoulder[j] + b.upper_arm_com_m * w[j] for j in range(3)],
+                       [elbow[j] + b.forearm_com_m * u[j] for j in range(3)]]
+        com = [0.0, 0.0, 0.0]
+        for mass, point in zip(self._masses, points):  # summed point by point, as numpy's sum over axis 0
+            for j in range(3):
+                com[j] += mass * point[j]
+        com = [c / self._mass_total for c in com]
 
         support = self._pivot_polygon(ankles, tips, feet_loaded, sticks_loaded)
-        planted = np.concatenate([ankles[:, 0], tips[:, 0]])
-        return Estimate(com, ankles, tips, feet_loaded, sticks_loaded, floor_z, support,
-                        self._fore_aft_ratio(float(com[0]), support[:, 0]), self._fore_aft_ratio(float(com[0]), planted),
-                        (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]))
+        planted = [ankles[0][0], ankles[1][0], tips[0][0], tips[1][0]]
+        return Estimate(np.array(com), np.array(ankles), np.array(tips), feet_loaded, sticks_loaded, floor_z,
+                        np.array(support).reshape(-1, 2), self._fore_aft_ratio(com[0], [p[0] for p in support]),
+                        self._fore_aft_ratio(com[0], planted), (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]))
 
-    def _fore_aft_ratio(self, com_x: float, xs: np.ndarray) -> float:
+    def _fore_aft_ratio(self, com_x: float, xs: list[float]) -> float:
         """The CoM's place between the rear-most and the front-most of ``xs``; nan for a support
         shorter than ``min_support_m`` fore-aft, which says nothing fore-aft."""
-        if not len(xs):
+        if not xs:
             return math.nan
-        rear, front = float(xs.min()), float(xs.max())
+        rear, front = min(xs), max(xs)
         return (com_x - rear) / (front - rear) if front - rear >= self.body.min_support_m else math.nan
 
     def _elbow_angle(self, i: int, a: float, b: float, c: float) -> tuple[float, bool]:
@@ -156,12 +184,14 @@ class StateEstimator:
         self._elbow[i] = e
         return e, True
 
-    def _pivot_polygon(self, ankles, tips, feet_loaded, sticks_loaded) -> np.ndarray:
+    def _pivot_polygon(self, ankles, tips, feet_loaded, sticks_loaded) -> list[tuple[float, float]]:
+        """The pivot polygon's vertices (x, y): each loaded ankle widened by half the sole across the heading, each loaded tip."""
         half = self.body.foot_half_width_m
         pts = []
         for i in range(2):
             if feet_loaded[i]:
-                pts += [ankles[i][:2] + [0.0, half], ankles[i][:2] - [0.0, half]]
+                x, y = ankles[i][0], ankles[i][1]
+                pts += [(x, y + half), (x, y - half)]
             if sticks_loaded[i]:
-                pts.append(tips[i][:2])
-        return np.array(pts).reshape(-1, 2)
+                pts.append((tips[i][0], tips[i][1]))
+        return pts
