@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 SIDES = ("l", "r")
+Vec3 = tuple[float, float, float] | list[float]
 
 
 def rpy_rows(roll: float, pitch: float, yaw: float = 0.0) -> tuple[tuple[float, float, float], ...]:
@@ -39,6 +40,11 @@ def rpy_rows(roll: float, pitch: float, yaw: float = 0.0) -> tuple[tuple[float, 
         (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
         (-sp, cp * sr, cp * cr),
     )
+
+
+def _along(p: Vec3, s: float, d: Vec3) -> Vec3:
+    """``p + s d`` for 3-vectors of floats."""
+    return (p[0] + s * d[0], p[1] + s * d[1], p[2] + s * d[2])
 
 
 def rot_rpy(roll: float, pitch: float, yaw: float = 0.0) -> np.ndarray:
@@ -115,15 +121,16 @@ class StateEstimator:
         fx, fz = b.foot_com_xz_m
         for i in range(2):
             hip, thigh, shank = rotated[1 + 3 * i: 4 + 3 * i]
-            knee = [hip[j] + legs.thigh_m * thigh[j] for j in range(3)]
-            ankle = [knee[j] + legs.shank_m * shank[j] for j in range(3)]
+            knee = _along(hip, legs.thigh_m, thigh)
+            ankle = _along(knee, legs.shank_m, shank)
             ankles.append(ankle)
-            points += [[hip[j] + b.thigh_com_m * thigh[j] for j in range(3)],
-                       [knee[j] + b.shank_com_m * shank[j] for j in range(3)],
-                       [ankle[0] + fx, ankle[1] + 0.0, ankle[2] + fz]]
+            points += [_along(hip, b.thigh_com_m, thigh), _along(knee, b.shank_com_m, shank), (ankle[0] + fx, ankle[1] + 0.0, ankle[2] + fz)]
         loaded_z = [ankles[i][2] - legs.ankle_height_m for i in range(2) if feet_loaded[i]]
         if loaded_z:
-            self._floor_z = float(np.mean(loaded_z))
+            total = 0.0
+            for z in loaded_z:  # summed in order, as numpy's mean of so few values
+                total += z
+            self._floor_z = total / len(loaded_z)
         floor_z = self._floor_z if self._floor_z is not None else min(ankles[0][2], ankles[1][2]) - legs.ankle_height_m
 
         tips = []
@@ -133,25 +140,22 @@ class StateEstimator:
             shoulder = rotated[7 + i]
             s_roll, s_pitch, s_yaw = stick_rpy[i]
             forearm = rpy_rows(s_roll, s_pitch, s_yaw - yaw)  # relative to the trunk's heading
-            u = [-forearm[j][2] for j in range(3)]  # stick axis (toward the tip)
-            x_f = [forearm[j][0] for j in range(3)]  # forearm x
+            u = (-forearm[0][2], -forearm[1][2], -forearm[2][2])  # stick axis (toward the tip)
+            x_f = (forearm[0][0], forearm[1][0], forearm[2][0])  # forearm x
             # upper arm w = cos e u - sin e x_f; the tip at the floor: A cos e + B sin e = C
             a_, b_ = b.upper_arm_m * u[2], -b.upper_arm_m * x_f[2]
             c_ = floor_z + b.tip_radius_m - shoulder[2] - b.elbow_to_tip_m * u[2]
             e, on_floor[i] = self._elbow_angle(i, a_, b_, c_)
             ce, se = math.cos(e), math.sin(e)
-            w = [ce * u[j] - se * x_f[j] for j in range(3)]
-            elbow = [shoulder[j] + b.upper_arm_m * w[j] for j in range(3)]
-            tip = [elbow[j] + b.elbow_to_tip_m * u[j] for j in range(3)]
-            tip[2] -= b.tip_radius_m
-            tips.append(tip)
-            points += [[shoulder[j] + b.upper_arm_com_m * w[j] for j in range(3)],
-                       [elbow[j] + b.forearm_com_m * u[j] for j in range(3)]]
-        com = [0.0, 0.0, 0.0]
-        for mass, point in zip(self._masses, points):  # summed point by point, as numpy's sum over axis 0
-            for j in range(3):
-                com[j] += mass * point[j]
-        com = [c / self._mass_total for c in com]
+            w = (ce * u[0] - se * x_f[0], ce * u[1] - se * x_f[1], ce * u[2] - se * x_f[2])
+            elbow = _along(shoulder, b.upper_arm_m, w)
+            tip = _along(elbow, b.elbow_to_tip_m, u)
+            tips.append((tip[0], tip[1], tip[2] - b.tip_radius_m))
+            points += [_along(shoulder, b.upper_arm_com_m, w), _along(elbow, b.forearm_com_m, u)]
+        cx = cy = cz = 0.0
+        for mass, (x, y, z) in zip(self._masses, points):  # summed point by point, as numpy's sum over axis 0
+            cx, cy, cz = cx + mass * x, cy + mass * y, cz + mass * z
+        com = (cx / self._mass_total, cy / self._mass_total, cz / self._mass_total)
 
         support = self._pivot_polygon(ankles, tips, feet_loaded, sticks_loaded)
         planted = [ankles[0][0], ankles[1][0], tips[0][0], tips[1][0]]
