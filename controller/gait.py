@@ -53,6 +53,11 @@ LEFT, RIGHT = 0, 1
 LEGS = (LEFT, RIGHT)
 
 
+def _clip(value: float, lo: float, hi: float) -> float:
+    """``np.clip`` of one float (the same result, NaN included, without the array call)."""
+    return min(max(value, lo), hi)
+
+
 @dataclass(frozen=True)
 class DoubleSupport:
     """What a double-support tick found: whether the swing may start, and the part of double
@@ -98,25 +103,30 @@ class StickTracker:
         p = self.params
         a = min(1.0, self.dt_s / p.stick_filter_s) if p.stick_filter_s > 0 else 1.0
         self.raw_n = np.asarray(m.stick_force_n, dtype=float)
-        self.force_n += a * (self.raw_n - self.force_n)
-        advance = est.tips[:, 0] - est.ankles[self.ref_leg][0] - self.ref_x
+        raw, force, unloaded = self.raw_n.tolist(), self.force_n.tolist(), self.unloaded_s.tolist()
+        ref_ankle_x = est.ankles[self.ref_leg][0]
+        tips_x, ref_x = est.tips[:, 0].tolist(), self.ref_x.tolist()
         for i in LEGS:
-            off = self.force_n[i] < p.stick_lifted_n
-            self.unloaded_s[i] = self.unloaded_s[i] + self.dt_s if off else 0.0
-            if self.unloaded_s[i] >= p.stick_lift_s:
+            force[i] += a * (raw[i] - force[i])
+            advance = tips_x[i] - ref_ankle_x - ref_x[i]
+            unloaded[i] = unloaded[i] + self.dt_s if force[i] < p.stick_lifted_n else 0.0
+            if unloaded[i] >= p.stick_lift_s:
                 self.lifted[i] = True
-            if self.lifted[i] and self.force_n[i] > p.stick_placed_n and advance[i] >= p.stick_moved_m:
+            if self.lifted[i] and force[i] > p.stick_placed_n and advance >= p.stick_moved_m:
                 self.moved[i] = True
+        self.force_n[:], self.unloaded_s[:] = force, unloaded
 
     @property
     def loaded(self) -> bool:
         """Both sticks planted and leant on: their force above ``swing_stick_n``, filtered and now."""
         n = self.params.swing_stick_n
-        return bool(np.all(self.force_n > n) and np.all(self.raw_n > n))
+        (f_l, f_r), (r_l, r_r) = self.force_n.tolist(), self.raw_n.tolist()
+        return f_l > n and f_r > n and r_l > n and r_r > n
 
     @property
     def any_lifted_now(self) -> bool:
-        return bool(np.any(self.unloaded_s > 0.0))
+        left, right = self.unloaded_s.tolist()
+        return left > 0.0 or right > 0.0
 
 
 class GaitPlanner:
@@ -185,24 +195,25 @@ class GaitPlanner:
         """
         p = self.p
         reach = self.leg.reach_m - p.reach_margin_m
-        feet = est.ankles[list(legs)][:, [0, 2]]
-        mid = feet.mean(axis=0)
+        ankles = est.ankles.tolist()
         if len(legs) == 2:
-            load = m.heel_force_n + m.toe_force_n
-            if bool(np.all(load > p.foot_contact_n)):
-                self.feet_spacing_m = float(feet[1][0] - feet[0][0])
-            offsets = np.array([[-0.5 * self.feet_spacing_m, 0.0], [0.5 * self.feet_spacing_m, 0.0]])
+            mid_x = (ankles[0][0] + ankles[1][0]) / 2  # the feet's mean, fore-aft
+            load = (m.heel_force_n + m.toe_force_n).tolist()
+            if load[0] > p.foot_contact_n and load[1] > p.foot_contact_n:
+                self.feet_spacing_m = float(ankles[1][0] - ankles[0][0])
+            offsets = (-0.5 * self.feet_spacing_m, 0.5 * self.feet_spacing_m)  # fore-aft; level in height
         else:
-            offsets = np.zeros((1, 2))
-        hips_x = -float(mid[0])  # the hips ahead of the feet
-        self.hips_cmd_x = float(np.clip(self.hips_cmd_x + dx, hips_x - p.max_lead_m, hips_x + p.max_lead_m))
-        mid_cmd_x = float(mid[0]) - (self.hips_cmd_x - hips_x)
-        x_far = float(np.max(np.abs(mid_cmd_x + offsets[:, 0])))
+            mid_x = ankles[legs[0]][0]
+            offsets = (0.0,)
+        hips_x = -mid_x  # the hips ahead of the feet
+        self.hips_cmd_x = _clip(self.hips_cmd_x + dx, hips_x - p.max_lead_m, hips_x + p.max_lead_m)
+        mid_cmd_x = mid_x - (self.hips_cmd_x - hips_x)
+        x_far = max(abs(mid_cmd_x + offset) for offset in offsets)
         depth = min(self.stand_height_m, math.sqrt(max(reach * reach - x_far * x_far, 0.0)))
         step = p.height_speed_m_s * self.dt_s
-        self.depth_m += float(np.clip(depth - self.depth_m, -step, step))
+        self.depth_m += _clip(depth - self.depth_m, -step, step)
         for i, offset in zip(legs, offsets):
-            self.ankle_cmd[i] = (mid_cmd_x + float(offset[0]), -self.depth_m + float(offset[1]))
+            self.ankle_cmd[i] = (mid_cmd_x + offset, -self.depth_m)
 
     def _solve(self, m: Measurements) -> None:
         """Joint targets for the commanded ankles. A target beyond the leg's reach less
@@ -210,9 +221,10 @@ class GaitPlanner:
         ill-conditioned); an ankle the joint ranges cannot reach keeps the leg's targets."""
         reach = self.leg.reach_m - self.p.reach_margin_m
         step = self.p.max_target_step_rad
+        pitch = self.pitch_goal_rad
+        ankle_cmd, targets = self.ankle_cmd.tolist(), self.targets.tolist()
         for i in LEGS:
-            pitch = self.pitch_goal_rad
-            x, z = float(self.ankle_cmd[i][0]), float(self.ankle_cmd[i][1])
+            x, z = ankle_cmd[i]
             r = math.hypot(x, z)
             if r > reach:
                 x, z = x * reach / r, z * reach / r
@@ -221,8 +233,9 @@ class GaitPlanner:
             except kin.KinematicsError:
                 continue
             h, k = 2 * i, 2 * i + 1
-            self.targets[h] += float(np.clip(hip_world + pitch - self.targets[h], -step, step))
-            self.targets[k] += float(np.clip(knee - self.targets[k], -step, step))
+            targets[h] += _clip(hip_world + pitch - targets[h], -step, step)
+            targets[k] += _clip(knee - targets[k], -step, step)
+        self.targets[:] = targets
 
     # -- double support ----------------------------------------------------------------------------
 
@@ -230,13 +243,15 @@ class GaitPlanner:
         """One double-support tick before the swing of ``swing_leg``."""
         p = self.p
         com_x = float(est.com[0])
-        front = float(est.ankles[:, 0].max())
+        (ankle_l, _, _), (ankle_r, _, _) = est.ankles.tolist()
+        (tip_l, _, _), (tip_r, _, _) = est.tips.tolist()
+        front = max(ankle_l, ankle_r)
         if not all(self.sticks.moved):
             self._stance(LEGS, est, m, self._shift(est))
             self._solve(m)
             return DoubleSupport(False, "shift", math.nan, self.sticks.loaded)
-        goal = float(np.mean(est.tips[:, 0])) - p.lean_behind_tips_m
-        comfortable = float(np.max(m.stick_force_n)) < p.comfort_stick_n
+        goal = (tip_l + tip_r) / 2 - p.lean_behind_tips_m
+        comfortable = max(m.stick_force_n.tolist()) < p.comfort_stick_n
         # The lean goes on until the swing foot is free: a trailing foot at its ankle's stop props
         # the body on its toe, farther ahead the shorter the step, so a short step needs a lean
         # farther onto the sticks. The patient lets it go at most ``lean_past_goal`` past its goal.
@@ -253,7 +268,7 @@ class GaitPlanner:
         else:
             self._lean_still_s += self.dt_s
         over = free or com_x >= goal + p.lean_past_goal_m - p.lean_stall_m or self._lean_still_s >= p.lean_stall_s
-        ahead = bool(np.all(est.tips[:, 0] > front + p.tips_ahead_m))
+        ahead = tip_l > front + p.tips_ahead_m and tip_r > front + p.tips_ahead_m
         return DoubleSupport(over and ahead and self.sticks.loaded, "lean", goal, self.sticks.loaded)
 
     def _shift(self, est: Estimate) -> float:
@@ -261,12 +276,12 @@ class GaitPlanner:
         p = self.p
         if self.sticks.any_lifted_now:
             return 0.0
-        x = est.ankles[:, 0]
+        (x_l, _, _), (x_r, _, _) = est.ankles.tolist()
         com_x = float(est.com[0])
-        lo, hi = float(x.min()) + p.shift_margin_m, float(x.max()) - p.shift_margin_m
+        lo, hi = min(x_l, x_r) + p.shift_margin_m, max(x_l, x_r) - p.shift_margin_m
         goal = (lo + hi) / 2 if lo > hi else min(max(com_x, lo), hi)
         step = p.shift_speed_m_s * self.dt_s
-        return float(np.clip((goal - com_x) * self.dt_s / p.shift_time_s, -step, step))
+        return _clip((goal - com_x) * self.dt_s / p.shift_time_s, -step, step)
 
     # -- swing -------------------------------------------------------------------------------------
 

@@ -49,7 +49,8 @@ class StepRecord:
     samples: int = 0
 
     def add(self, stick_force_n: np.ndarray) -> None:
-        self.force_sum_n += float(np.mean(stick_force_n))
+        left, right = stick_force_n.tolist()  # the two sticks' mean, as np.mean sums and divides
+        self.force_sum_n += (left + right) / 2
         self.samples += 1
 
     @property
