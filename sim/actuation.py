@@ -78,7 +78,8 @@ class JointImpedance:
         if not (self.lower[i] <= position <= self.upper[i]) or not (0.0 <= limit <= self.rated[i]):
             self.rejected += 1
             return False
-        if mode in (Mode.HOLD, Mode.QUICK_STOP) and self.mode[i] not in (Mode.HOLD, Mode.QUICK_STOP):
+        # int(): a numpy integer compared with an IntEnum member costs microseconds (numpy probes the enum class)
+        if mode in (Mode.HOLD, Mode.QUICK_STOP) and int(self.mode[i]) not in (Mode.HOLD, Mode.QUICK_STOP):
             self._needs_latch[i] = True
             self._latch_pending = True
         self.mode[i] = mode
@@ -90,7 +91,7 @@ class JointImpedance:
         """Joint ``i``'s loop coefficients for its mode. Track: ``K (q* - q) + D (qd* - qd) + tau_ff``
         within the command's limit; hold and quick stop: ``K_h (q_latched - q) + D_h (0 - qd)``
         (the same value as ``... - D_h qd``) within the hold limit; disable: zero gains, zero limit."""
-        g, mode = self.gains, self.mode[i]
+        g, mode = self.gains, int(self.mode[i])
         if mode == Mode.TRACK:
             limit = self.limit[i]
             self._law[:, i] = (g.stiffness[i], self.target[i], g.damping[i], self.velocity_ff[i], self.torque_ff[i], -limit, limit)
