@@ -151,14 +151,15 @@ class ControllerCore:
 
     def _measurements(self, tick: int) -> tuple[Measurements | None, bool]:
         """The tick's sensor values, and whether every one of them is from this tick."""
-        if any(n not in self.latest for n in SENSOR_MESSAGES) or any(s.status is None for s in self.nodes.values()):
+        latest, nodes = self.latest, self.nodes.values()
+        if any(n not in latest for n in SENSOR_MESSAGES) or any(s.status is None for s in nodes):
             return None, False
-        fresh = all(self.latest[n][0] == tick for n in SENSOR_MESSAGES) and all(s.status_tick == tick for s in self.nodes.values())
-        v = {n: self.latest[n][1] for n in SENSOR_MESSAGES}
-        q = np.array([s.status.position_rad for s in self.nodes.values()])
-        stick = [v["STICK_LEFT"], v["STICK_RIGHT"]]
-        plantar = [v["PLANTAR_LEFT"], v["PLANTAR_RIGHT"]]
-        o = v["TRUNK_IMU_ORIENTATION"]
+        sensors = [latest[n] for n in SENSOR_MESSAGES]  # (tick, values) in SENSOR_MESSAGES' order
+        fresh = all(t == tick for t, _ in sensors) and all(s.status_tick == tick for s in nodes)
+        stick_l, stick_r, plantar_l, plantar_r, o, _ = (v for _, v in sensors)
+        q = np.array([s.status.position_rad for s in nodes])
+        stick = [stick_l, stick_r]
+        plantar = [plantar_l, plantar_r]
         return Measurements(
             joint_position_rad=q,
             trunk_rpy_rad=np.array([o.roll_rad, o.pitch_rad, o.yaw_rad]),
@@ -277,23 +278,24 @@ class ControllerCore:
         moving = self.fsm.moving and m is not None
         if not moving:
             self._targets = None
-        previous = self._targets if self._targets is not None else (m.joint_position_rad if m is not None else np.zeros(4))
-        sent = np.zeros(4)
+        previous = (self._targets if self._targets is not None else (m.joint_position_rad if m is not None else np.zeros(4))).tolist()
+        targets = self.gait.targets.tolist() if moving else None
+        hold = JointCommand(JointMode.HOLD, torque_limit_nm=self.hold_torque_nm)
+        sent = []
         for i, (name, joint) in enumerate(zip(self.node_names, self.joint_names)):
             if moving:
-                cmd = JointCommand(JointMode.TRACK, float(self.gait.targets[i]),
-                                   torque_limit_nm=self.cfg.envelope.max_torque_nm)
+                cmd = JointCommand(JointMode.TRACK, targets[i], torque_limit_nm=self.cfg.envelope.max_torque_nm)
             else:
-                cmd = JointCommand(JointMode.HOLD, torque_limit_nm=self.hold_torque_nm)
-            checked = self.envelope.check(joint, cmd, float(previous[i]))
+                cmd = hold
+            checked = self.envelope.check(joint, cmd, previous[i])
             if checked.violation is not None:
                 self.pending_faults.append(f"ENVELOPE({checked.violation})")  # latches FAULT next tick
             c = checked.command
-            sent[i] = c.position_rad
+            sent.append(c.position_rad)
             frames.append((self._command_of[name], (int(c.mode), c.position_rad, c.velocity_rad_s, c.torque_nm,
                                                     float(round(c.torque_limit_nm)))))
         if moving:
-            self._targets = sent
+            self._targets = np.array(sent)
 
 
 def _leg_index(swing: GaitState) -> int:

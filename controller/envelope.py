@@ -74,12 +74,19 @@ class Envelope:
         of the last tick (or the measured position when the last command was not a track)."""
         b = self.joints[joint]
         values = (cmd.position_rad, cmd.velocity_rad_s, cmd.torque_nm, cmd.torque_limit_nm, previous_position_rad)
-        if not all(math.isfinite(v) for v in values):
+        if not all(map(math.isfinite, values)):
             hold = JointCommand(JointMode.HOLD, torque_limit_nm=self.max_torque)
             return Checked(hold, violation=f"{joint}: non-finite command {values[:4]}")
         if cmd.mode != JointMode.TRACK:
             limit = min(max(cmd.torque_limit_nm, 0.0), self.max_torque)
             return Checked(JointCommand(cmd.mode, torque_limit_nm=limit))
+        step, v, t = self.max_step, self.max_velocity, self.max_torque
+        step_lo, step_hi = previous_position_rad - step, previous_position_rad + step
+        lo, hi = b.lower_rad + self.margin, b.upper_rad - self.margin
+        q, qd, tau, limit = values[:4]
+        if step_lo <= q <= step_hi and lo <= q <= hi and -v <= qd <= v and -t <= tau <= t and 0.0 <= limit <= t:
+            # inside every bound: nothing to clamp (what the clamps below would return unchanged)
+            return Checked(cmd if cmd.mode is JointMode.TRACK else JointCommand(JointMode.TRACK, q, qd, tau, limit))
         clamped: list[str] = []
         violation: str | None = None
 
@@ -93,13 +100,9 @@ class Envelope:
                 violation = f"{joint}: {what} {value:.4g} beyond [{lo:.4g}, {hi:.4g}]"
             return out
 
-        step = self.max_step
-        q = clip("setpoint step", cmd.position_rad, previous_position_rad - step, previous_position_rad + step, (self.excess - 1.0) * step)
-        lo, hi = b.lower_rad + self.margin, b.upper_rad - self.margin
+        q = clip("setpoint step", q, step_lo, step_hi, (self.excess - 1.0) * step)
         q = clip("position", q, lo, hi, self.position_excess)  # last: the joint range always wins
-        v = self.max_velocity
-        qd = clip("velocity", cmd.velocity_rad_s, -v, v, (self.excess - 1.0) * v)
-        t = self.max_torque
-        tau = clip("torque", cmd.torque_nm, -t, t, (self.excess - 1.0) * t)
-        limit = clip("torque limit", cmd.torque_limit_nm, 0.0, t, (self.excess - 1.0) * t)
+        qd = clip("velocity", qd, -v, v, (self.excess - 1.0) * v)
+        tau = clip("torque", tau, -t, t, (self.excess - 1.0) * t)
+        limit = clip("torque limit", limit, 0.0, t, (self.excess - 1.0) * t)
         return Checked(JointCommand(JointMode.TRACK, q, qd, tau, limit), tuple(clamped), violation)
