@@ -53,13 +53,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     cp.add_argument("--seed", type=int, default=0, help="seed of the compared walks (default 0)")
     cp.add_argument("--theta", type=float, nargs=2, metavar=("ALPHA", "XHAT"),
                     help="the adaptive gait's theta (default: the configured controller.compensation)")
-    cp.add_argument("--walks", type=positive_int, default=3, help="walks (seeds) per gait (default 3)")
+    cp.add_argument("--walks", type=positive_int, default=5, help="walks (seeds) per gait (default 5)")
     cp.set_defaults(func=run_compare)
 
     ap = xsub.add_parser("all", help="learning from A and B, then the comparison with the learned theta; figures, CSV, report")
     common(ap)
     seeds(ap)
-    ap.add_argument("--walks", type=positive_int, default=3, help="walks (seeds) per gait in the comparison (default 3)")
+    ap.add_argument("--walks", type=positive_int, default=5, help="walks (seeds) per gait in the comparison (default 5)")
     ap.set_defaults(func=run_all)
 
 

@@ -30,7 +30,7 @@ class Plan:
     updates: int = 15
     compare: bool = False
     compare_theta: tuple[float, float] | None = None  # None with learning: the learned one
-    compare_walks: int = 3
+    compare_walks: int = 5
     mode: str = "sagittal"
     workers: int = 2
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from config import Config
 from controller.factory import pi2_params
+from controller import pi2
 from controller.pi2 import Pi2Learner
 from tools.experiment.runner import WalkJob
 
@@ -36,10 +37,10 @@ def walk_seed(*path: int) -> int:
 
 
 def rollout_cost(result: dict[str, Any], n: int, fall_cost: float, force_cost: float) -> float:
-    """Paper equation (11) for one walk: ``lambda1 (N - m) / N + lambda2 sum r``."""
-    m = min(len(result["cycle_costs"]), n)
-    fell = result["fell"]
-    return fall_cost * ((n - m) / n if fell else 0.0) + force_cost * float(sum(result["cycle_costs"][:m]))
+    """Paper equation (11) for one walk (:func:`controller.pi2.rollout_cost`): ``lambda1 (N - m) / N
+    + lambda2 sum r`` with m the gait cycles it completed."""
+    costs = result["cycle_costs"][:n]
+    return pi2.rollout_cost(costs, len(costs), n, fall_cost, force_cost)
 
 
 @dataclass

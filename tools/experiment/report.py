@@ -164,11 +164,15 @@ def _figure_learning(res: Results, path: Path) -> None:
 def _figure_steps(res: Results, path: Path) -> None:
     """The analogue of the paper's Fig. 11: the mean stick force of every step while learning."""
     fig, ax = _canvas(1, 1, (11, 4))
+    window = 50
     for r in res.learning:
-        f = [s[3] for s in _learning_steps(r)]
-        ax[0, 0].plot(np.arange(len(f)), f, color=COLORS.get(r.start), alpha=0.6, lw=0.8, label=f"{r.start} seed {r.seed}")
-    ax[0, 0].set(title="Mean stick force of every step over the learning run", xlabel="step (all roll-outs in order)",
-                 ylabel="stick force (N)")
+        f = np.array([s[3] for s in _learning_steps(r)])
+        ax[0, 0].plot(np.arange(len(f)), f, color=COLORS.get(r.start), alpha=0.15, lw=0.6)
+        if len(f) >= window:
+            smooth = np.convolve(f, np.ones(window) / window, mode="valid")
+            ax[0, 0].plot(np.arange(window - 1, len(f)), smooth, color=COLORS.get(r.start), lw=1.5, label=f"{r.start} seed {r.seed}")
+    ax[0, 0].set(title=f"Mean stick force of every step over the learning runs (thin), and over the last {window} steps",
+                 xlabel="step (all roll-outs in order)", ylabel="stick force (N)")
     ax[0, 0].grid(alpha=0.3)
     ax[0, 0].legend(fontsize=8)
     _save(fig, path)
