@@ -70,11 +70,13 @@ class FaultInjector:
         return bool(self._faults)
 
     def _node_faults(self, node: str, kind: str, tick: int) -> list[_Fault]:
+        if not self._faults:  # none configured (every walk but the fault tests): the per-tick questions answer at once
+            return []
         return [f for f in self._faults if f.cfg.node == node and f.cfg.kind == kind and f.active(tick)]
 
     def starting(self, node: str, kind: str, tick: int) -> bool:
         """Whether a one-shot fault (reboot, drive_fault) of ``node`` starts at ``tick``."""
-        hit = any(f.cfg.node == node and f.cfg.kind == kind and f.cfg.start_tick == tick for f in self._faults)
+        hit = bool(self._faults) and any(f.cfg.node == node and f.cfg.kind == kind and f.cfg.start_tick == tick for f in self._faults)
         if hit:
             self.counts[kind] += 1
         return hit
@@ -113,7 +115,9 @@ class FaultInjector:
 
     def due(self, tick: int) -> list[tuple[MessageSpec, bytes]]:
         """Delayed frames whose time has come (at or before ``tick``)."""
-        ready = []
+        ready: list[tuple[MessageSpec, bytes]] = []
+        if not self._delayed:
+            return ready
         for t in sorted(k for k in self._delayed if k <= tick):
             ready += self._delayed.pop(t)
         return ready

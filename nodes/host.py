@@ -295,15 +295,15 @@ class NodesHost:
             q = r.joint_position_rad[j] if port.stuck_position is None else port.stuck_position
             raw = (int(fw.drive_state), int(fw.error), q, r.joint_velocity_rad_s[j], r.joint_torque_nm[j])
         elif family == "STICK":
-            raw = (r.stick_force_n[side], *r.stick_rpy_rad[side])
+            raw = (r.stick_force_n[side], *r.stick_rpy_rad[side].tolist())
         elif family == "PLANTAR":
             raw = (r.heel_force_n[side], r.toe_force_n[side])
         elif family == "TRUNK_IMU_ORIENTATION":
-            raw = tuple(r.trunk_rpy_rad)
+            raw = r.trunk_rpy_rad.tolist()
         elif family == "TRUNK_IMU_RATE":
-            raw = tuple(r.trunk_rate_rad_s)
+            raw = r.trunk_rate_rad_s.tolist()
         elif family == "TRUNK_IMU_ACCEL":
-            raw = tuple(r.trunk_specific_force_m_s2)
+            raw = r.trunk_specific_force_m_s2.tolist()
         else:
             raise NodesError(f"{spec.name}: no sensor source for message family {family}")
         out = []
