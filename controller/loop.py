@@ -86,28 +86,30 @@ class LockstepLoop:
         got: set[str] = set()
         pending = set().union(*(self._per_sync_ids[n] for n in expected)) if self.pump is None else set()
         read = 0
-        clock = self.clock
+        now_ns, recv, pump = self.clock.now_ns, self.bus.recv, self.pump  # looked up once: the loop runs per frame
+        receive, core_receive, status_ids = self.rx.receive, self.core.receive, self._status_ids
         while read < self.max_frames:
-            t0 = clock.now_ns()
+            t0 = now_ns()
             remaining = (until_ns - t0) / 1e9
-            msg = self.bus.recv(timeout=max(0.0, remaining) if self.pump is None else 0.0)
-            if msg is None and self.pump is not None:
-                self.pump()
-                msg = self.bus.recv(timeout=0.0)
-            self._idle_ns += clock.now_ns() - t0  # waiting for (or running) the nodes is not the controller's work
+            msg = recv(timeout=max(0.0, remaining) if pump is None else 0.0)
+            if msg is None and pump is not None:
+                pump()
+                msg = recv(timeout=0.0)
+            self._idle_ns += now_ns() - t0  # waiting for (or running) the nodes is not the controller's work
             if msg is None:
                 if expected <= got or remaining <= 0:
                     break
                 continue
             read += 1
-            result = self.rx.receive(msg)
+            result = receive(msg)
             if type(result) is Decoded and result.message.sender != "CONTROLLER":
-                self.core.receive(result, tick)
-                node = self._status_ids.get(result.message.frame_id)
+                core_receive(result, tick)
+                frame_id = result.message.frame_id
+                node = status_ids.get(frame_id)
                 if node is not None:
                     got.add(node)
                 if pending:
-                    pending.discard(result.message.frame_id)
+                    pending.discard(frame_id)
                     if not pending and expected <= got:
                         break
         self.report.drained_max = max(self.report.drained_max, read)
