@@ -179,6 +179,9 @@ class PatientControlConfig:
 
     stick_ahead_m: float = field_spec(doc="Nominal stick placement ahead of the front ankle.", unit="m", min=0.05, max=0.8)
     stick_noise_m: float = field_spec(doc="Std of the placement error (the pilot's intention).", unit="m", min=0.0, max=0.2)
+    stick_min_advance_m: float = field_spec(
+        doc="A moved stick lands at least this far ahead of where it stood (the gait moves the sticks forward).",
+        unit="m", min=0.0, max=0.3)
     stick_half_width_m: float = field_spec(doc="Lateral distance of the stick tips from the midline.", unit="m", min=0.1, max=0.6)
     control_hz: int = field_spec(doc="Rate of the patient's balance control.", unit="Hz", min=10, max=200)
     arm_stiffness_nm_rad: float = field_spec(doc="Arm joint stiffness of the patient's posture control.", unit="N.m/rad", min=0.0, max=5000.0)

@@ -229,11 +229,9 @@ class Walker:
                     self.planted[side] = False
                     start = self.tip_point(side)
                     sign = 1.0 if side == "l" else -1.0
-                    goal = np.array([
-                        com[0] + self.cfg.patient.stick_ahead_m + self.rng.normal(0.0, self.cfg.patient.stick_noise_m),
-                        sign * self.cfg.patient.stick_half_width_m,
-                        0.0,
-                    ])
+                    pc = self.cfg.patient
+                    ahead = com[0] + pc.stick_ahead_m + self.rng.normal(0.0, pc.stick_noise_m)
+                    goal = np.array([max(ahead, start[0] + pc.stick_min_advance_m), sign * pc.stick_half_width_m, 0.0])
                     self.tip_path[side] = (start, goal, 0.0)
             for side, (start, goal, tau) in list(self.tip_path.items()):
                 tau += dt / s.stick_move_time_s
