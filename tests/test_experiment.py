@@ -18,6 +18,7 @@ from tools.experiment.experiment import Plan, comparison_checks, learning_checks
 from tools.experiment.learn import STARTS, LearningRun, Update, rollout_cost, walk_seed
 from tools.experiment.report import write_all
 from tools.experiment.runner import ExperimentError, WalkJob, WalkPool
+from tools.experiment.schedule import Interrupted
 
 TINY = {"controller.learning.steps_per_rollout": 1, "controller.learning.rollouts_per_update": 2}
 CFG = with_overrides(load_config(default_config_path()), TINY)
@@ -73,6 +74,17 @@ def test_a_second_run_resumes_from_the_stored_walks(parallel):
     from tools.experiment.report import summary
 
     assert _strip(summary(again)) == _strip(summary(res))
+
+
+def test_a_stop_keeps_the_walks_in_progress_and_the_same_plan_resumes(tmp_path):
+    plan = Plan(cfg=CFG, out=tmp_path, seeds=[0], starts=["A"], updates=1, workers=1)
+    done = []
+    with pytest.raises(Interrupted, match="the same command resumes"):
+        experiment.run(plan, progress=False, stop=lambda: bool(done) or bool(done.append(1)))
+    stored = len(list((tmp_path / "cache").glob("*.json")))
+    assert 1 <= stored < plan.walks_planned()
+    again = experiment.run(plan, progress=False)
+    assert again.walks_reused == stored and again.walks_run == plan.walks_planned() - stored
 
 
 def test_a_damaged_stored_walk_is_a_one_line_error(tmp_path):

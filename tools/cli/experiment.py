@@ -7,7 +7,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from tools.cli.common import add_config_options, load_cli_config, positive_int, print_json
+from tools.cli.common import StopSignals, add_config_options, load_cli_config, positive_int, print_json
 
 DEFAULT_OUT = Path("build/experiment")
 
@@ -84,7 +84,8 @@ def _finish(args: argparse.Namespace, plan) -> int:
     from tools.experiment import experiment
     from tools.experiment.report import write_all
 
-    res = experiment.run(plan, progress=not args.quiet)
+    with StopSignals() as signals:
+        res = experiment.run(plan, progress=not args.quiet, stop=lambda: signals.requested)
     s = write_all(res, args.out)
     if args.json:
         print_json(s)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -93,9 +94,10 @@ class Results:
     wall_time_s: float = 0.0
 
 
-def run(plan: Plan, progress: bool = True) -> Results:
+def run(plan: Plan, progress: bool = True, stop: Callable[[], bool] | None = None) -> Results:
     """Everything in ``plan`` on one pool of ``plan.workers`` processes (results cached under
-    ``plan.out/cache``: a second call with the same plan runs nothing again)."""
+    ``plan.out/cache``: a second call with the same plan runs nothing again). ``stop()`` true ends
+    it early (:class:`tools.experiment.schedule.Interrupted`), keeping every finished walk."""
     clock = MonotonicClock()
     t0 = clock.now_ns()
     bar = Progress(plan.walks_planned(), enabled=progress, clock=clock)
@@ -105,7 +107,7 @@ def run(plan: Plan, progress: bool = True) -> Results:
             f"{start}-s{seed}": learning_run(plan.cfg, start, seed, updates=plan.updates, mode=plan.mode)
             for seed in plan.seeds for start in plan.starts
         }
-        learned = drive(pool, runs)
+        learned = drive(pool, runs, stop)
         results.learning = [learned[name] for name in runs]
         if plan.compare:
             if plan.compare_theta is None and not results.learning:
@@ -113,7 +115,7 @@ def run(plan: Plan, progress: bool = True) -> Results:
             theta = plan.compare_theta or learned_theta(results.learning)
             results.compare_theta = theta
             jobs = compare_jobs(theta, seed=plan.seeds[0], walks=plan.compare_walks, cycles=plan.cycles, mode=plan.mode)
-            results.comparison = drive(pool, {"compare": comparison(jobs)})["compare"]
+            results.comparison = drive(pool, {"compare": comparison(jobs)}, stop)["compare"]
         results.walks_run, results.walks_reused = pool.ran, pool.reused
     results.wall_time_s = (clock.now_ns() - t0) / 1e9
     return results

@@ -17,6 +17,7 @@ import json
 import math
 import multiprocessing
 import os
+import signal
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from importlib import metadata
@@ -117,6 +118,10 @@ _worker_cfg: Config | None = None
 def _init_worker(cfg: Config) -> None:
     global _worker_cfg
     _worker_cfg = cfg
+    # A terminal's Ctrl-C (and a SIGTERM to the group) is the parent's to handle: it lets the walks
+    # in progress finish and keeps them, rather than each worker dying in the middle of one.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 def _run_in_worker(job: WalkJob) -> dict[str, Any]:
@@ -152,10 +157,14 @@ class WalkPool:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def close(self) -> None:
+    def close(self) -> int:
+        """Cancel the walks not started, wait for those in progress (their results are stored);
+        returns how many finished while closing."""
+        before = self.ran
         if self._executor is not None:
             self._executor.shutdown(wait=True, cancel_futures=True)
             self._executor = None
+        return self.ran - before
 
     def _path(self, job: WalkJob) -> Path | None:
         return None if self.cache_dir is None else self.cache_dir / f"{job.key(self.digest)}.json"
@@ -188,6 +197,9 @@ class WalkPool:
             inner = self._executor.submit(_run_in_worker, job)
 
         def finished(f: cf.Future) -> None:
+            if f.cancelled():  # the pool closed before it started
+                future.cancel()
+                return
             if f.exception() is not None:
                 future.set_exception(f.exception())
                 return

@@ -9,16 +9,22 @@ own batch.
 from __future__ import annotations
 
 import concurrent.futures as cf
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 from typing import Any
 
-from tools.experiment.runner import WalkJob, WalkPool
+from tools.experiment.runner import ExperimentError, WalkJob, WalkPool
 
 Run = Generator[list[WalkJob], list[dict[str, Any]], Any]
 
 
-def drive(pool: WalkPool, runs: dict[str, Run]) -> dict[str, Any]:
-    """Run every generator in ``runs`` to its end; returns their outcomes by name."""
+class Interrupted(ExperimentError):
+    """A stop was asked (SIGINT, SIGTERM): the walks in progress finished and were kept."""
+
+
+def drive(pool: WalkPool, runs: dict[str, Run], stop: Callable[[], bool] | None = None) -> dict[str, Any]:
+    """Run every generator in ``runs`` to its end; returns their outcomes by name. When ``stop()``
+    turns true, no new walk starts, the pool finishes (and stores) those in progress and
+    :class:`Interrupted` is raised."""
     outcomes: dict[str, Any] = {}
     waiting: dict[str, tuple[Run, list[cf.Future]]] = {}
 
@@ -33,8 +39,14 @@ def drive(pool: WalkPool, runs: dict[str, Run]) -> dict[str, Any]:
     for name, run in runs.items():
         advance(name, run, None)
     while waiting:
-        futures = [f for _, fs in waiting.values() for f in fs]
-        cf.wait(futures, return_when=cf.FIRST_COMPLETED)
+        # only the walks still running: wait() returns at once when any future given is done
+        running = [f for _, fs in waiting.values() for f in fs if not f.done()]
+        if running:
+            cf.wait(running, timeout=0.5, return_when=cf.FIRST_COMPLETED)
+        if stop is not None and stop():
+            finished = pool.close()
+            raise Interrupted(f"interrupted: {finished} walk(s) in progress finished; every finished walk is kept "
+                              f"under {pool.cache_dir}, and the same command resumes from them")
         for name, (run, fs) in list(waiting.items()):
             if all(f.done() for f in fs):
                 del waiting[name]
