@@ -130,6 +130,9 @@ def test_learning_checks_follow_the_done_when_rules():
     assert not learning_checks(apart, 10)["all_converge_together"]
     flat = [_run("A", 0, [700, 690, 650], [10, 10, 10], (-0.5, 0.55))]
     assert not learning_checks(flat, 10)["all_cut_cost_30_percent"]
+    lost = [_run("A", 0, [5000, 1000, 3700], [0, 10, 3], (-0.5, 0.55))]  # cut once, lost again by the end
+    c = learning_checks(lost, 10)["runs"]["A-s0"]
+    assert c["cut_30_at_update"] == 1 and not c["cost_cut_30_percent"] and not c["reaches_full_cycles"]
 
 
 def _walk(seed: int, cycles: int, force: float, fell: bool) -> dict:
@@ -146,6 +149,7 @@ def test_comparison_checks_follow_the_done_when_rules():
 
     c = comparison_checks(gaits(55.0, 2), 10)
     assert c["adaptive_force_below_every_non_falling_fixed"] and c["longest_fixed_falls_within_6_cycles"]
+    assert not c["adaptive_torque_below_every_fixed"]  # 80 N.m for every gait: not below
     assert c["non_falling_fixed"] == ["0.10", "0.12"]
     assert not comparison_checks(gaits(59.0, 2), 10)["adaptive_force_below_every_non_falling_fixed"]
     assert not comparison_checks(gaits(55.0, 7), 10)["longest_fixed_falls_within_6_cycles"]

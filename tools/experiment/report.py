@@ -225,9 +225,9 @@ def report(s: dict[str, Any]) -> str:
                          f"{c['final_cost']:.0f} | {_pct(c['final_cut'])} | {c['cut_30_at_update'] or '-'} | "
                          f"({c['final_theta'][0]:.3f}, {c['final_theta'][1]:.3f}) | {c['final_cycles']} | {c['first_full_at_update'] or '-'} |")
         lines += ["", "| claim | paper | here |", "|---|---|---|",
-                  f"| noise-free cost falls | {PAPER['cost']} | every run cut by 30 % or more: {_yes(checks['all_cut_cost_30_percent'])} |",
+                  f"| noise-free cost falls | {PAPER['cost']} | cut by 30 % or more by the last update: {_count(checks, 'cost_cut_30_percent')} |",
                   f"| A and B end at the same theta (within 10 %) | {PAPER['optimum']} | {_seeds_same(checks)} |",
-                  f"| stable steps reach 10 of 10 | {PAPER['stable']} | every run's last noise-free walk: {_yes(checks['all_reach_full_cycles'])} |", ""]
+                  f"| stable steps reach 10 of 10 | {PAPER['stable']} | the last noise-free walk walks them all: {_count(checks, 'reaches_full_cycles')} |", ""]
     if "comparison" in s:
         c = s["comparison"]
         lines += ["## Adaptive against fixed step lengths (Figs. 8 and 12)", "",
@@ -244,8 +244,13 @@ def report(s: dict[str, Any]) -> str:
                   f"{_yes(ch['adaptive_force_below_every_non_falling_fixed'])} (non-falling fixed: {', '.join(ch['non_falling_fixed']) or 'none'}) |",
                   f"| the too-long fixed length falls within 6 cycles, the adaptive walks 10 of 10 | {PAPER['force']} | "
                   f"{ch['longest_fixed']} m: {_yes(ch['longest_fixed_falls_within_6_cycles'])}; adaptive: {_yes(ch['adaptive_walks_full'])} |",
-                  f"| upper-body torque | {PAPER['torque']} | see the table |", ""]
+                  f"| upper-body torque | {PAPER['torque']} | {_yes(ch['adaptive_torque_below_every_fixed'])} |", ""]
     return "\n".join(lines)
+
+
+def _count(checks: dict[str, Any], key: str) -> str:
+    runs = checks["runs"].values()
+    return f"{sum(r[key] for r in runs)} of {len(runs)} runs"
 
 
 def _pct(x: float | None) -> str:
