@@ -174,7 +174,8 @@ def _figure_steps(res: Results, path: Path) -> None:
     ax[0, 0].set(title=f"Mean stick force of every step over the learning runs (thin), and over the last {window} steps",
                  xlabel="step (all roll-outs in order)", ylabel="stick force (N)")
     ax[0, 0].grid(alpha=0.3)
-    ax[0, 0].legend(fontsize=8)
+    if ax[0, 0].get_legend_handles_labels()[0]:  # runs shorter than the window have no running mean
+        ax[0, 0].legend(fontsize=8)
     _save(fig, path)
 
 
