@@ -5,7 +5,10 @@ full experiment is ``aider-exo experiment all``."""
 
 from __future__ import annotations
 
+import csv
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -16,7 +19,7 @@ from tools.experiment import experiment
 from tools.experiment.compare import GaitStats, compare_jobs
 from tools.experiment.experiment import Plan, comparison_checks, learning_checks
 from tools.experiment.learn import STARTS, LearningRun, Update, rollout_cost, walk_seed
-from tools.experiment.report import write_all
+from tools.experiment.report import summary
 from tools.experiment.runner import ExperimentError, WalkJob, WalkPool
 from tools.experiment.schedule import Interrupted
 
@@ -29,58 +32,65 @@ def _learn(out: Path, workers: int) -> experiment.Results:
 
 
 def _strip(summary: dict) -> dict:
-    return {k: v for k, v in summary.items() if k not in ("walks_run", "walks_reused", "wall_time_s", "workers")}
+    """A summary without what depends on how it ran (JSON form: tuples as lists)."""
+    plain = json.loads(json.dumps(summary))
+    return {k: v for k, v in plain.items() if k not in ("walks_run", "walks_reused", "wall_time_s", "workers")}
 
 
 @pytest.fixture(scope="module")
-def parallel(tmp_path_factory) -> tuple[Path, experiment.Results]:
+def parallel(tmp_path_factory) -> tuple[Path, dict]:
+    """``aider-exo experiment learn`` with two worker processes, as its own process (the pool's
+    processes never run inside the test process)."""
     out = tmp_path_factory.mktemp("parallel")
-    return out, _learn(out, workers=2)
+    sets = [a for k, v in TINY.items() for a in ("--set", f"{k}={v}")]
+    done = subprocess.run(
+        [sys.executable, "-m", "tools.cli", "experiment", "learn", "--out", str(out), "--workers", "2", "--updates", "1",
+         *sets, "--json", "--quiet"],
+        check=False, capture_output=True, text=True, timeout=600, cwd=Path(__file__).resolve().parents[1],
+    )
+    assert done.returncode == 0, done.stderr
+    return out, json.loads(done.stdout)
 
 
 def test_learning_runs_the_planned_walks_and_updates(parallel):
-    out, res = parallel
-    assert res.walks_run == res.plan.walks_planned() == 2 * (1 * (2 + 1) + 1)
-    for run in res.learning:
-        assert [u.index for u in run.updates] == [0, 1]
-        assert run.updates[0].evaluation_theta == STARTS[run.start]
-        assert len(run.rollouts) == 2
+    out, s = parallel
+    assert s["walks_run"] == 2 * (1 * (2 + 1) + 1) and s["workers"] == 2
+    for run in s["learning"]["runs"]:
+        assert [u["index"] for u in run["updates"]] == [0, 1]
+        assert run["updates"][0]["evaluation_theta"] == list(STARTS[run["start"]])
         # the update's batch: two roll-outs with exploration around the start
-        assert run.updates[1].batch_mean_cycles is not None and run.updates[1].noise is not None
-        assert all(ro["job"]["theta"] != list(STARTS[run.start]) for ro in run.rollouts)
-    s = write_all(res, out)
+        assert run["updates"][1]["batch_mean_cycles"] is not None and run["updates"][1]["noise"] is not None
+    with (out / "rollouts.csv").open() as f:
+        rollouts = list(csv.DictReader(f))
+    assert sorted(r["start"] for r in rollouts) == ["A", "A", "B", "B"]
+    assert all((float(r["alpha"]), float(r["xhat"])) != STARTS[r["start"]] for r in rollouts)
     for name in ("summary.json", "report.md", "learning.csv", "rollouts.csv", "steps.csv", "fig7-learning.png",
                  "fig11-stick-force-while-learning.png"):
         assert (out / name).stat().st_size > 0, name
-    assert json.loads((out / "summary.json").read_text()) == json.loads(json.dumps(s))
+    assert json.loads((out / "summary.json").read_text()) == s
     assert "| A seed 0 |" in (out / "report.md").read_text()
 
 
 def test_workers_give_the_results_of_one_process(parallel, tmp_path):
-    _, res = parallel
-    here = _learn(tmp_path, workers=0)
-    from tools.experiment.report import summary
-
-    assert _strip(summary(here)) == _strip(summary(res))
+    _, s = parallel
+    assert _strip(summary(_learn(tmp_path, workers=0))) == _strip(s)
 
 
 def test_a_second_run_resumes_from_the_stored_walks(parallel):
-    out, res = parallel
+    out, s = parallel
     stored = sorted((out / "cache").glob("*.json"))
-    assert len(stored) == res.walks_run
+    assert len(stored) == s["walks_run"]
     stored[0].unlink()  # as if the run had been interrupted before that walk finished
     again = _learn(out, workers=0)
-    assert (again.walks_run, again.walks_reused) == (1, res.walks_run - 1)
-    from tools.experiment.report import summary
-
-    assert _strip(summary(again)) == _strip(summary(res))
+    assert (again.walks_run, again.walks_reused) == (1, s["walks_run"] - 1)
+    assert _strip(summary(again)) == _strip(s)
 
 
-def test_a_stop_keeps_the_walks_in_progress_and_the_same_plan_resumes(tmp_path):
-    plan = Plan(cfg=CFG, out=tmp_path, seeds=[0], starts=["A"], updates=1, workers=1)
-    done = []
+def test_a_stop_keeps_the_finished_walks_and_the_same_plan_resumes(tmp_path):
+    plan = Plan(cfg=CFG, out=tmp_path, seeds=[0], starts=["A"], updates=2, workers=0)
+    asked = []
     with pytest.raises(Interrupted, match="the same command resumes"):
-        experiment.run(plan, progress=False, stop=lambda: bool(done) or bool(done.append(1)))
+        experiment.run(plan, progress=False, stop=lambda: bool(asked) or bool(asked.append(1)))  # stop at the second look
     stored = len(list((tmp_path / "cache").glob("*.json")))
     assert 1 <= stored < plan.walks_planned()
     again = experiment.run(plan, progress=False)
