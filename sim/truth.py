@@ -288,7 +288,7 @@ def fore_aft_ratio_at_lateral(polygon, point, heading=(1.0, 0.0)) -> float:
     d = (hull - p) @ lateral  # signed lateral offset of each vertex from the line
     s = hull @ h  # position of each vertex along the heading
     d2, s2 = np.roll(d, -1), np.roll(s, -1)
-    crossing = d * d2 < 0.0
+    crossing = np.sign(d) * np.sign(d2) < 0.0  # signs, not d * d2: that product underflows for tiny offsets
     hits = np.concatenate([s[d == 0.0], (s + d / np.where(crossing, d - d2, 1.0) * (s2 - s))[crossing]])
     if len(hits) == 0:
         return math.nan
