@@ -24,7 +24,6 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 from config import AiderError, Config, config_hash
 
@@ -98,16 +97,16 @@ def run_walk(cfg: Config, job: WalkJob) -> dict[str, Any]:
         "step_x_ratio": [round(s.x_ratio, 5) for s in landed],
         "step_stick_force_n": [round(f, 4) for f in forces],
         "step_arm_torque_nm": [round(t, 4) for t in torques],
-        "mean_stick_force_n": _mean(forces),
-        "mean_arm_torque_nm": _mean(torques),
+        "mean_stick_force_n": _mean(outcome.mean_stick_force_n),  # the walk's own means (tools.pipeline.WalkOutcome)
+        "mean_arm_torque_nm": _mean(outcome.mean_arm_torque_nm),
         "x_ratio_mae": None if not math.isfinite(outcome.ratio_mae) else round(outcome.ratio_mae, 5),
         "sim_time_s": round(outcome.sim_time_s, 2),
         "wall_time_s": round(outcome.wall_time_s, 2),
     }
 
 
-def _mean(values: list[float]) -> float | None:
-    return round(float(np.mean(values)), 4) if values else None
+def _mean(value: float) -> float | None:
+    return round(value, 4) if math.isfinite(value) else None
 
 
 # -- the pool ---------------------------------------------------------------------------------
