@@ -413,6 +413,48 @@ def test_real_time_mode_paces_physics_by_the_clock_and_samples_at_sync():
             host.close()
 
 
+def test_real_time_frames_are_read_between_ticks_that_all_overrun():
+    """A board's CAN receive is interrupt-driven: physics slower than the 20 ms tick (as inside the
+    vcan sandbox) must neither starve the commands, which would trip the command watchdog, nor keep
+    ``poll`` from returning to the caller."""
+    from protocol.clock import ManualClock
+
+    clock = ManualClock()
+    cfg = with_overrides(BASE, {"bus.channel": "nodes-overrun"})
+    with virtual_bus("nodes-overrun") as ctl_bus, virtual_bus("nodes-overrun") as node_bus:
+        host = NodesHost(cfg, node_bus, lockstep=False, seed=1, clock=clock)
+        physics = host._physics_tick
+
+        def overrunning() -> None:
+            physics()
+            clock.advance(45_000_000)  # more than two periods: every tick is an overrun
+
+        host._physics_tick = overrunning
+        try:
+            tx, rx = Transmitter(host.codec), Receiver(Codec())
+            host.boot()
+            ctl_bus.send(tx.message("NMT_COMMAND", {"command": int(NmtCommand.START), "node_id": 0}))
+            emcys = []
+            for tick in range(20):
+                # What the controller sent while the nodes were busy with the last physics tick.
+                ctl_bus.send(tx.message("SYNC", {"tick": tick}))
+                for j in JOINTS:
+                    ctl_bus.send(tx.message(f"JOINT_COMMAND_{j}", {
+                        "mode": int(JointMode.HOLD), "position_setpoint_rad": 0.0, "velocity_ff_rad_s": 0.0,
+                        "torque_ff_Nm": 0.0, "torque_limit_Nm": 80.0}))
+                ctl_bus.send(tx.message("CONTROLLER_HEARTBEAT", {"gait_state": int(GaitState.STAND)}))
+                host.poll(0.0)
+                while (m := ctl_bus.recv(timeout=0)) is not None:
+                    r = rx.receive(m)
+                    if isinstance(r, Decoded) and r.name.startswith("EMCY"):
+                        emcys.append((tick, r.name, r.values.emcy_code))
+            assert host.stats.overruns >= 15 and host.stats.syncs == 20
+            assert emcys == []
+            assert {p.firmware.drive_state for p in host.ports.values()} != {DriveState.FAULT}
+        finally:
+            host.close()
+
+
 @pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
 def test_the_nodes_process_reports_status_and_exits_cleanly_on_a_signal(signame):
     import json

@@ -5,17 +5,18 @@
   the nodes report no fall, while ``candump -L`` records the whole run; the capture decodes with
   our DBC (codec and E2E receiver) without a CRC, counter or length error, and shows every SYNC
   and every swing the controller reports.
+* The same in real time (no ``--lockstep``), 5 gait cycles: both processes on their own 20 ms
+  clocks, the controller's SYNC sampling the nodes' newest state.
 * ``aider-exo walk --bus socketcan``: the walk command starts the nodes as its second process
   itself; its summary (cycles, no fall, X_CoM/X_SP error from the join with the nodes' ground
   truth) and candump's capture of it.
 
-Both are lock-step: the guest's one CPU runs both processes and candump at whatever speed it has.
-Real-time walking is tested on the in-process virtual bus (tests/test_controller_loop.py), not
-here: inside the sandbox the nodes alone run the physics at 0.7-3.6 times real time from one run to
-the next (``tools/vcan-run -- aider-exo bench nodes``), and with the controller and candump on the
-same guest CPU (user-mode Linux makes every CAN send and receive a costly trap) the real-time nodes
-fall behind their 20 ms timer, miss SYNCs and commands, and the controller latches FAULT within the
-first seconds (NODE_LOST or the nodes' command-timeout EMCY).
+The guest's one CPU runs both processes and candump. Real time fits because tools/vcan-run
+preloads tools/uml-fastclock.c: without it every gettimeofday of PyBullet is a trap and the nodes
+ran the physics at 0.4-1.1 times real time inside the sandbox, fell behind their 20 ms timer and
+the controller latched FAULT within seconds (NODE_LOST or the command-timeout EMCY); with it, 3.5-3.9
+times (``tools/vcan-run -- aider-exo bench nodes``). The assertions are on behaviour, never on
+timing.
 
 Run through the vcan sandbox (``make test`` does: ``tools/vcan-run -- pytest -m vcan``).
 """
@@ -42,6 +43,7 @@ pytestmark = pytest.mark.vcan
 
 AIDER = str(Path(sys.executable).with_name("aider-exo"))
 CYCLES = 10
+RT_CYCLES = 5
 SWINGS = {GaitState.SWING_LEFT: "l", GaitState.SWING_RIGHT: "r"}
 
 
@@ -73,11 +75,13 @@ def _swings_on_the_bus(decoded: list[Decoded]) -> list[str]:
     return legs
 
 
-def test_controller_walks_ten_gait_cycles_over_vcan0_with_the_nodes_as_a_second_process(vcan0, tmp_path):
-    log = tmp_path / "candump.log"
+def _walk_two_processes(vcan0: str, log: Path, cycles: int, *, lockstep: bool) -> tuple[dict, dict]:
+    """``aider-exo nodes`` and ``aider-exo controller --cycles N`` over vcan0 with candump recording;
+    checks both exit cleanly and returns their JSON summaries."""
+    mode = ["--lockstep"] if lockstep else []
     with candump(vcan0, log):
         nodes = subprocess.Popen(
-            [AIDER, "nodes", "--bus", "socketcan", "--channel", vcan0, "--lockstep", "--mode", "sagittal", "--json", "--quiet"],
+            [AIDER, "nodes", "--bus", "socketcan", "--channel", vcan0, *mode, "--mode", "sagittal", "--json", "--quiet"],
             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )
         try:
@@ -88,7 +92,7 @@ def test_controller_walks_ten_gait_cycles_over_vcan0_with_the_nodes_as_a_second_
                 clock.sleep_until(clock.now_ns() + 100_000_000)
             assert booted >= 4, f"the nodes did not boot (exit status {nodes.poll()})"
             ctl = subprocess.run(
-                [AIDER, "controller", "--bus", "socketcan", "--channel", vcan0, "--lockstep", "--cycles", str(CYCLES),
+                [AIDER, "controller", "--bus", "socketcan", "--channel", vcan0, *mode, "--cycles", str(cycles),
                  "--json", "--quiet"],
                 check=False, cwd=ROOT, capture_output=True, text=True, timeout=900,  # a hang guard only (the walk took 166-299 s in the sandbox)
             )
@@ -96,34 +100,61 @@ def test_controller_walks_ten_gait_cycles_over_vcan0_with_the_nodes_as_a_second_
             nodes.send_signal(signal.SIGTERM)
             nodes_out, nodes_err = nodes.communicate(timeout=120)
     assert ctl.returncode == 0, ctl.stderr
-    summary = json.loads(ctl.stdout)
+    assert nodes.returncode == 0, nodes_err
+    return json.loads(ctl.stdout), json.loads(nodes_out)
+
+
+def _check_walk(summary: dict, final: dict, cycles: int, node_errors: set[str] = frozenset({"NONE"})) -> None:
+    """The controller walked ``cycles`` gait cycles without a FAULT and the HHEA did not fall; the
+    nodes end with an error in ``node_errors``."""
     events = summary["events"]
     assert not any("FAULT" in e for e in events), events
-    assert summary["steps_completed"] == 2 * CYCLES, (summary["steps_completed"], events[-5:])
-    landed = [s for s in summary["steps"] if s["landed"]]
-    assert [s["leg"] for s in landed] == ["l", "r"] * CYCLES or [s["leg"] for s in landed] == ["r", "l"] * CYCLES
-    assert summary["final_state"] not in ("FAULT", "HOLD") and summary["timeouts"] == 0
+    assert summary["steps_completed"] == 2 * cycles, (summary["steps_completed"], events[-5:])
+    landed = [s["leg"] for s in summary["steps"] if s["landed"]]
+    assert landed in (["l", "r"] * cycles, ["r", "l"] * cycles), landed
+    assert summary["final_state"] not in ("FAULT", "HOLD")
     assert summary["receiver"]["rejected"] == 0 and summary["receiver"]["lost"] == 0
     assert summary["send_failures"] == 0
-    assert nodes.returncode == 0, nodes_err
-    final = json.loads(nodes_out)
     assert final["fall"] is None, final["fall"]
     assert {n["nmt"] for n in final["nodes"].values()} == {"OPERATIONAL"}
-    assert {n["error"] for n in final["nodes"].values()} == {"NONE"}
+    assert {n["error"] for n in final["nodes"].values()} <= node_errors
     assert final["receiver"]["rejected"] == 0 and final["receiver"]["lost"] == 0
-    assert final["syncs"] == summary["ticks"]
 
-    # candump's capture of the whole run: no CRC, counter or length error, the nodes' boot-ups
-    # first, every SYNC in order, a status per SYNC, and the controller's swings on the bus.
+
+def _check_capture(log: Path, summary: dict) -> list[int]:
+    """candump's capture of the whole run: no CRC, counter or length error, the nodes' boot-ups
+    first, every SYNC in order, a status per SYNC, and the controller's swings on the bus.
+    Returns the SYNCs' ticks."""
     decoded, receiver = _decode_capture(log)
     assert [d.name for d in decoded[:4]] == ["HEARTBEAT_LH", "HEARTBEAT_LK", "HEARTBEAT_RH", "HEARTBEAT_RK"]
     syncs = [d.values.tick for d in decoded if d.name == "SYNC"]
-    assert syncs == list(range(summary["ticks"]))
+    # Real time skips the ticks an overrun passed over; they are never sent late.
+    assert syncs == sorted(set(syncs)) and len(syncs) == summary["ticks"]
     for name in ("JOINT_STATUS_LH", "JOINT_STATUS_LK", "JOINT_STATUS_RH", "JOINT_STATUS_RK", "STICK_LEFT", "PLANTAR_RIGHT"):
         assert sum(d.name == name for d in decoded) >= len(syncs) - 10, name  # one per SYNC once operational
     swung = [s["leg"] for s in summary["steps"] if s["swing_tick"] >= 0]
     assert _swings_on_the_bus(decoded) == swung
     assert receiver.stats.accepted == len(decoded)
+    return syncs
+
+
+def test_controller_walks_ten_gait_cycles_over_vcan0_with_the_nodes_as_a_second_process(vcan0, tmp_path):
+    log = tmp_path / "candump.log"
+    summary, final = _walk_two_processes(vcan0, log, CYCLES, lockstep=True)
+    _check_walk(summary, final, CYCLES)
+    assert summary["timeouts"] == 0
+    assert final["syncs"] == summary["ticks"]
+    assert _check_capture(log, summary) == list(range(summary["ticks"]))  # lock-step: every tick, in order
+
+
+def test_controller_walks_five_gait_cycles_over_vcan0_in_real_time(vcan0, tmp_path):
+    log = tmp_path / "candump.log"
+    summary, final = _walk_two_processes(vcan0, log, RT_CYCLES, lockstep=False)
+    assert summary["mode"] == "realtime" and final["mode"] == "realtime"
+    # The nodes run on until SIGTERM: after the controller's exit their command watchdog may
+    # quick-stop them, holding the HHEA upright (checked: no fall at their exit).
+    _check_walk(summary, final, RT_CYCLES, {"NONE", "COMMAND_TIMEOUT"})
+    _check_capture(log, summary)
 
 
 def test_walk_command_starts_the_nodes_process_over_vcan0(vcan0, tmp_path):

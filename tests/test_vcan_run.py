@@ -46,6 +46,19 @@ UML_REASON = _uml_unavailable_reason()
 uml_available = UML_REASON is None
 needs_uml = pytest.mark.skipif(not uml_available, reason=f"needs user-mode Linux: {UML_REASON}")
 
+def _cpu_flags() -> set[str]:
+    try:
+        return {w for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("flags") for w in line.split()}
+    except OSError:
+        return set()
+
+
+# vcan-run preloads tools/uml-fastclock.c into the guest exactly where it can build it.
+FASTCLOCK_EXPECTED = (
+    os.uname().machine == "x86_64" and {"constant_tsc", "nonstop_tsc"} <= _cpu_flags()
+    and (shutil.which("cc") or shutil.which("gcc")) is not None and os.environ.get("VCAN_RUN_FASTCLOCK", "1") != "0"
+)
+
 # Arguments that must reach CMD byte for byte.
 TRICKY_ARGS = [
     "plain",
@@ -91,6 +104,20 @@ if out["mode"] in ("host", "uml"):
     frame = (0x123).to_bytes(4, "little") + bytes([3, 0, 0, 0]) + b"abc" + bytes(5)
     a.send(frame)
     out["can_roundtrip"] = b.recv(16) == frame
+# gettimeofday as a C library sees it (in UML, tools/uml-fastclock.c) against the kernel clock,
+# over more than a second (the fast clock's first slope after 10 ms, a new anchor every second).
+import ctypes, time
+class Timeval(ctypes.Structure):
+    _fields_ = [("sec", ctypes.c_long), ("usec", ctypes.c_long)]
+libc, tv, worst = ctypes.CDLL(None), Timeval(), 0.0
+for _ in range(120):
+    before = time.time()
+    libc.gettimeofday(ctypes.byref(tv), None)
+    after, seen = time.time(), tv.sec + tv.usec * 1e-6
+    worst = max(worst, before - seen, seen - after)
+    time.sleep(0.01)
+out["gettimeofday_worst_outside_s"] = worst  # how far outside the kernel's before and after
+out["ld_preload"] = os.environ.get("LD_PRELOAD", "")
 print(json.dumps(out))
 """
 
@@ -197,6 +224,8 @@ def test_uml_probe_args_cwd_env_vcan0(tmp_path):
     assert seen["stdin"] == ""
     assert seen["vcan0_type"] == "280"  # ARPHRD_CAN
     assert seen["can_roundtrip"] is True
+    assert seen["gettimeofday_worst_outside_s"] < 0.0005
+    assert ("fastclock.so" in seen["ld_preload"]) == FASTCLOCK_EXPECTED
     assert r.stderr == b""
 
 
