@@ -51,6 +51,8 @@ class StepConfig:
     max_m: float = field_spec(doc="Longest step ever commanded.", unit="m", min=0.02, max=0.6)
 
     def validate(self) -> None:
+        if self.min_m > self.max_m:
+            fail("min_m", f"must not exceed max_m {self.max_m}")
         if not self.min_m <= self.init_m <= self.max_m:
             fail("init_m", f"must lie between min_m {self.min_m} and max_m {self.max_m}")
 
@@ -152,6 +154,23 @@ class EnvelopeConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class SafetyConfig:
+    """Detection budgets of the fault table (FAULTS.md section 3, docs/SAFETY.md), each with a hard bound."""
+
+    lost_ticks: int = field_spec(doc="A node without a valid JOINT_STATUS for this many ticks in a row is lost: FAULT (F1-F3, F9; FAULTS.md: at most 5).", min=1, max=5)
+    integrity_errors: int = field_spec(doc="This many frames of the nodes rejected for their CRC or counter sequence ...", min=1, max=10)
+    integrity_window_ticks: int = field_spec(doc="... within this many ticks: FAULT (F6-F8; FAULTS.md: 2 in 5). Any error frame in the window: no new step (F11).", min=1, max=50)
+    send_failure_ticks: int = field_spec(doc="A send that fails in this many ticks in a row: FAULT (F12, F13).", min=1, max=5)
+    overrun_limit: int = field_spec(doc="This many overrun ticks ...", min=1, max=50)
+    overrun_window_ticks: int = field_spec(doc="... within this many ticks, or one overrun of more than overrun_max_ticks: HOLD (F25).", min=10, max=1000)
+    overrun_max_ticks: int = field_spec(doc="An overrun that skips more ticks than this: HOLD at once (F25: 3).", min=1, max=50)
+    fall_tilt_rad: float = field_spec(doc="Trunk roll or pitch beyond this ...", unit="rad", min=0.1, max=1.2)
+    fall_ticks: int = field_spec(doc="... for this many ticks: a fall, FAULT (F18).", min=1, max=5)
+    hold_torque_nm: float = field_spec(doc="Torque limit of every HOLD command.", unit="N.m", min=1.0, max=200.0)
+    reset_healthy_ticks: int = field_spec(doc="An operator reset leaves FAULT only after the nodes were healthy this long (I4: 25).", min=5, max=1000)
+
+
+@dataclass(frozen=True, kw_only=True)
 class GaitConfig:
     """The legs through the gait cycle (controller/gait.py, docs/CONTROLLER.md): the weight shift
     and lean of double support, the stick moves that gate them, and the end of the swing."""
@@ -203,7 +222,14 @@ class ControllerConfig:
     step: StepConfig = field_spec(doc="Step length and its safety clamp.")
     learning: LearningConfig = field_spec(doc="Online learning of the step-length compensation.")
     envelope: EnvelopeConfig = field_spec(doc="The safety envelope of every joint command.")
+    safety: SafetyConfig = field_spec(doc="Fault detection budgets (docs/SAFETY.md).")
     body: BodyConfig = field_spec(doc="The patient-plus-exoskeleton model of the state estimator.")
     gait: GaitConfig = field_spec(doc="The legs through the gait cycle.")
     compensation: CompensationConfig = field_spec(doc="The step-length compensation's theta without a patient file.")
     patients_dir: str = field_spec(doc="Directory of the learned parameters per patient, <patients_dir>/<NAME>.json (relative: to the working directory).")
+
+    def validate(self) -> None:
+        if self.safety.hold_torque_nm > self.envelope.max_torque_nm:
+            fail("safety.hold_torque_nm", f"must not exceed envelope.max_torque_nm {self.envelope.max_torque_nm}")
+        if self.gait.max_target_step_rad > self.envelope.max_step_rad:
+            fail("gait.max_target_step_rad", f"must not exceed envelope.max_step_rad {self.envelope.max_step_rad}")

@@ -11,15 +11,25 @@ It brings the nodes up (NMT start once all four have booted), supervises them, e
 state every tick and runs the gait: in DOUBLE_SUPPORT and the swings the legs follow the
 :class:`~controller.gait.GaitPlanner` (weight shift, lean, DMP swing), every other state holds them
 (HOLD commands). The step length of each swing comes from the :class:`~controller.policy.StepPolicy`
-(fixed, compensated, or learning) with X_CoM/X_SP estimated at the swing's start. FAULT latches on
-a lost node (no status for ``lost_ticks`` ticks), a drive fault or a fault EMCY, a node that
-reboots, a command beyond the safety envelope, and a fall (trunk tilt beyond ``fall_tilt_rad``
-for two ticks, FAULTS.md F18); an operator reset leaves it as the FSM allows. Walking starts on
+(fixed, compensated, or learning) with X_CoM/X_SP estimated at the swing's start. The budgets are the
+configuration's ``controller.safety`` (docs/SAFETY.md lists every row of FAULTS.md). FAULT latches
+on a lost node (no status for ``lost_ticks`` ticks), a drive fault or a fault EMCY, a node that
+reboots, a command beyond the safety envelope, a fall (trunk tilt beyond ``fall_tilt_rad`` for
+``fall_ticks`` ticks, F18), a measured joint angle beyond its limit by more than the
+envelope's ``position_excess_rad`` (F16), a sensor frame missing as long as a lost node's status,
+``integrity_errors`` node frames rejected for their CRC or counter
+sequence within ``integrity_window_ticks`` (F6-F8), and sends failing in ``send_failure_ticks`` ticks
+in a row (F12, F13); overruns (``overrun_limit`` in ``overrun_window_ticks``, or one skipping more
+than ``overrun_max_ticks``) make a protective stop, HOLD (F25); an error frame within the
+integrity window lets no new step start (F11). An operator reset leaves HOLD or FAULT as the FSM
+allows. The loop reports what only it sees: rejected frames (:meth:`rejected`), failed sends
+(:meth:`send_failed`) and overruns (:meth:`overran`). Walking starts on
 :meth:`ControllerCore.request_walk` (the operator's start) and ends with :meth:`request_stop`.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -34,8 +44,16 @@ from controller.fsm import SWINGS, FsmInputs, GaitFsm
 from controller.gait import GaitPlanner
 from controller.policy import StepPolicy, StepRecord
 from protocol.catalog import TICK_MS, Catalog, default_catalog
-from protocol.codec import Decoded
+from protocol.codec import Decoded, RejectReason, Rejection
 from protocol.enums import DriveState, GaitState, JointMode, NmtCommand, NmtState
+
+# Rejections that say a node's frame was damaged, masqueraded or out of order (F6-F8). Not these: a
+# repeated counter (a duplicate, F5, or a frozen node, F9), a wrong length or a value out of the
+# DBC's range (F10, F15): the frame counts as missing, and the lost-node supervision handles a node
+# whose frames stay missing.
+INTEGRITY_REASONS = frozenset({RejectReason.BAD_CRC, RejectReason.WRONG_SEQUENCE})
+
+MAX_AGE = 8  # a counter more than this many SYNCs behind is taken as a new sequence, not as late
 
 SENSOR_MESSAGES = (
     "STICK_LEFT", "STICK_RIGHT", "PLANTAR_LEFT", "PLANTAR_RIGHT", "TRUNK_IMU_ORIENTATION", "TRUNK_IMU_RATE",
@@ -67,8 +85,8 @@ class TickResult:
 
 class ControllerCore:
     def __init__(
-        self, cfg: ControllerConfig, *, catalog: Catalog | None = None, lost_ticks: int = 3, hold_torque_nm: float = 80.0,
-        swing_weights: DmpWeights | None = None, policy: StepPolicy | None = None, fall_tilt_rad: float = 0.5,
+        self, cfg: ControllerConfig, *, catalog: Catalog | None = None,
+        swing_weights: DmpWeights | None = None, policy: StepPolicy | None = None,
     ) -> None:
         """``swing_weights``: the fitted DMP (default: the cached fit of the configuration);
         ``policy``: where step lengths come from (default: the compensation with the configured theta)."""
@@ -76,7 +94,8 @@ class ControllerCore:
         catalog = catalog or default_catalog()
         self.node_names = catalog.joint_nodes  # left hip, left knee, right hip, right knee
         self._command_of = {n: catalog.message("JOINT_COMMAND", n).name for n in self.node_names}
-        self.fsm = GaitFsm()
+        self.safety = safety = cfg.safety
+        self.fsm = GaitFsm(reset_healthy_ticks=safety.reset_healthy_ticks)
         self.estimator = StateEstimator(cfg.body, cfg.legs)
         legs = cfg.legs
         joints = tuple(
@@ -86,10 +105,19 @@ class ControllerCore:
         )
         self.envelope = Envelope.from_config(joints, cfg.envelope)
         self.joint_names = [j.name for j in joints]
-        self.lost_ticks = lost_ticks
-        self.hold_torque_nm = hold_torque_nm
+        excess = cfg.envelope.position_excess_rad  # a measured angle this far beyond a limit is a fault
+        self._measured_range = {n: (j.lower_rad - excess, j.upper_rad + excess) for n, j in zip(self.node_names, joints)}
+        self.lost_ticks = safety.lost_ticks
+        self.hold_torque_nm = safety.hold_torque_nm
         self.nodes = {n: NodeState() for n in self.node_names}
-        self.latest: dict[str, tuple[int, Any]] = {}  # sensor message -> (tick, values)
+        self._per_sync = {n: [m.frame_id for m in catalog.sent_by(n) if m.is_cyclic and m.family != "HEARTBEAT"]
+                          for n in self.node_names}
+        self._sensor_sender = {name: catalog.by_name(name).sender for name in SENSOR_MESSAGES}
+        self.latest: dict[str, tuple[int, Any]] = {}  # sensor message -> (tick it was sent for, values)
+        self.syncs = 0  # SYNCs of finished ticks: the index of this tick's SYNC
+        self._phase: dict[int, int] = {}  # per-SYNC frame ID -> (SYNC index - counter) mod 16 of an on-time frame
+        self._ages_now: dict[int, int] = {}  # per-SYNC frame ID -> its age, of the frames of this tick
+        self._shift = (0, 0)  # (a uniform lateness of every node's frames, for how many ticks in a row)
         self.started = False
         self.pending_faults: list[str] = []
         self.reset_requested = False
@@ -100,8 +128,13 @@ class ControllerCore:
             swing_weights = load_swing(cfg)
         self.gait = GaitPlanner(make_leg(cfg), Dmp(swing_weights), cfg.gait, dt_s=TICK_MS / 1000.0, substeps=cfg.swing.substeps)
         self.policy = policy or StepPolicy(step_bounds(cfg), theta=(cfg.compensation.alpha, cfg.compensation.xhat_com))
-        self.fall_tilt_rad = fall_tilt_rad
+        self.fall_tilt_rad = safety.fall_tilt_rad
         self._tilted_ticks = 0
+        self._integrity: deque[tuple[int, str]] = deque()  # (tick, reason) of the nodes' damaged frames
+        self._error_frame_tick = -(10**9)  # the last error frame's tick
+        self._failed_sends: deque[int] = deque(maxlen=safety.send_failure_ticks)  # ticks with a failed send
+        self._overruns: deque[int] = deque()  # ticks that followed an overrun
+        self._overrun_stop: str | None = None  # a protective stop asked by the loop's timing
         self.walk_requested = False
         self.stop_requested = False
         self.steps: list[StepRecord] = []
@@ -111,16 +144,65 @@ class ControllerCore:
 
     # -- input -----------------------------------------------------------------------------------
 
-    def receive(self, frame: Decoded, tick: int) -> None:
-        """One accepted frame from a node, received during ``tick``."""
+    def _age(self, frame_id: int, counter: int) -> int:
+        """How many SYNCs late a per-SYNC frame is, from its alive counter (FAULTS.md F4, I5).
+
+        A node sends each of its per-SYNC frames once per SYNC with the next counter, so an on-time
+        frame keeps (SYNC index - counter) mod 16 constant; a lost frame keeps it too (both advance),
+        a frame that comes late raises it by its lateness. The smallest value seen is the on-time one."""
+        lag = (self.syncs - counter) % 16
+        base = self._phase.get(frame_id)
+        if base is None or (age := (lag - base) % 16) > MAX_AGE:
+            self._phase[frame_id] = lag
+            age = 0
+        self._ages_now[frame_id] = age
+        return age
+
+    def _missed_sync(self, tick: int) -> None:
+        """A SYNC the nodes did not see (lost on the bus, or its send failed) shifts the counters of
+        every node's frames alike: all of this tick's per-SYNC frames, of every operational node,
+        late by the same ``a`` ticks, as in the tick before. One node's frames coming late do not
+        (F4); a uniform delay of every node is indistinguishable from it without a SYNC echo in the
+        frames (docs/SAFETY.md). The frames are then this tick's: their phase moves by ``a``."""
+        now, self._ages_now = self._ages_now, {}
+        expected = [fid for name, node in self.nodes.items() if node.nmt == NmtState.OPERATIONAL for fid in self._per_sync[name]]
+        ages = {now.get(fid) for fid in expected}
+        shift = ages.pop() if len(ages) == 1 and expected else None
+        if not shift:  # None (a frame missing, or different ages) or 0 (on time)
+            self._shift = (0, 0)
+            return
+        ticks = self._shift[1] + 1 if self._shift[0] == shift else 1
+        self._shift = (shift, ticks)
+        if ticks < 2:
+            return
+        self._shift = (0, 0)
+        for fid in expected:
+            self._phase[fid] = (self._phase[fid] + shift) % 16
+        for node in self.nodes.values():
+            if node.status_tick == tick - shift:
+                node.status_tick = tick
+        for name, (sent, values) in list(self.latest.items()):
+            if sent == tick - shift:
+                self.latest[name] = (tick, values)
+
+    def receive(self, frame: Decoded, tick: int) -> bool:
+        """One accepted frame from a node, received during ``tick``. A per-SYNC frame (status and
+        sensors) counts for the tick it was sent for, which a late frame is not (:meth:`_age`).
+        Returns False for a late per-SYNC frame (the loop goes on waiting for this tick's)."""
         spec, v = frame.message, frame.values
         family, sender = spec.family, spec.sender
         if family == "JOINT_STATUS":
             node = self.nodes[sender]
-            node.status, node.status_tick = v, tick
+            sent = tick - self._age(spec.frame_id, frame.counter)
+            if sent > node.status_tick:  # never an older sample over a newer one
+                node.status, node.status_tick = v, sent
+            return sent == tick
         elif family == "HEARTBEAT":
             node = self.nodes[sender]
             state = NmtState(v.nmt_state)
+            if state != NmtState.OPERATIONAL:
+                for m in self._per_sync[sender]:  # a rebooted node's counters start again
+                    self._phase.pop(m, None)
             if state == NmtState.BOOT_UP:
                 if node.was_operational:
                     self.pending_faults.append(f"NODE_REBOOTED({sender})")
@@ -133,7 +215,51 @@ class ControllerCore:
             if v.error_register != 0:
                 self.pending_faults.append(f"EMCY {v.emcy_code:#06x} from {sender}")
         else:
-            self.latest[spec.name] = (tick, v)
+            sent = tick - self._age(spec.frame_id, frame.counter)
+            if sent > self.latest.get(spec.name, (-(10**9),))[0]:
+                self.latest[spec.name] = (sent, v)
+            return sent == tick
+        return True
+
+    def rejected(self, rejection: Rejection, tick: int) -> None:
+        """A frame the receiver rejected during ``tick`` (foreign frames only count as such)."""
+        reason = rejection.reason
+        if reason == RejectReason.ERROR_FRAME:
+            self._error_frame_tick = tick
+        elif reason in INTEGRITY_REASONS and rejection.message is not None and rejection.message.sender in self.nodes:
+            self._integrity.append((tick, f"{reason.value} {rejection.message.name}"))
+            if reason == RejectReason.WRONG_SEQUENCE:  # the receiver re-synchronises on it: so does the age
+                self._phase.pop(rejection.frame_id, None)
+
+    def send_failed(self, tick: int) -> None:
+        """A frame of ``tick`` could not be sent, even after one retry."""
+        if not self._failed_sends or self._failed_sends[-1] != tick:
+            self._failed_sends.append(tick)
+
+    def overran(self, tick: int, skipped: int) -> None:
+        """The loop overran into ``tick``, skipping ``skipped`` ticks (F25)."""
+        s = self.safety
+        self._overruns.append(tick)
+        while self._overruns[0] <= tick - s.overrun_window_ticks:
+            self._overruns.popleft()
+        if skipped > s.overrun_max_ticks:
+            self._overrun_stop = f"OVERRUN({skipped} ticks skipped)"
+        elif len(self._overruns) >= s.overrun_limit:
+            self._overrun_stop = f"OVERRUN({len(self._overruns)} in {s.overrun_window_ticks} ticks)"
+
+    def _supervise_bus(self, tick: int) -> None:
+        """The integrity window and the failed sends (see the module doc)."""
+        s = self.safety
+        window = self._integrity
+        while window and window[0][0] <= tick - s.integrity_window_ticks:
+            window.popleft()
+        if len(window) >= s.integrity_errors:
+            self.pending_faults.append(f"FRAME_INTEGRITY({len(window)} in {s.integrity_window_ticks} ticks: {window[-1][1]})")
+            window.clear()
+        failed = self._failed_sends
+        if len(failed) == failed.maxlen and failed[0] == tick - failed.maxlen:
+            self.pending_faults.append(f"BUS_SEND_FAILED({failed.maxlen} ticks)")
+            failed.clear()
 
     def request_walk(self) -> None:
         """The operator's start: walk from STAND (or STOP)."""
@@ -173,6 +299,7 @@ class ControllerCore:
         """The work of ``tick`` after its node frames are in; returns what to send."""
         frames: list[tuple[str, tuple]] = []
         events: list[str] = []
+        self._missed_sync(tick)
         if not self.started and all(n.nmt is not None for n in self.nodes.values()):  # all booted or heard
             frames.append(("NMT_COMMAND", (int(NmtCommand.START), 0)))
             self.started = True
@@ -182,13 +309,26 @@ class ControllerCore:
         for name, node in self.nodes.items():
             if node.was_operational and tick - max(node.status_tick, node.operational_since) >= self.lost_ticks:
                 self.pending_faults.append(f"NODE_LOST({name})")
-            if node.status is not None and node.status.drive_state == DriveState.FAULT and node.status_tick == tick:
-                self.pending_faults.append(f"DRIVE_FAULT({name}: error {node.status.error_code})")
+            if node.status is not None and node.status_tick == tick:
+                if node.status.drive_state == DriveState.FAULT:
+                    self.pending_faults.append(f"DRIVE_FAULT({name}: error {node.status.error_code})")
+                lo, hi = self._measured_range[name]
+                if not lo <= node.status.position_rad <= hi:  # F16: a joint beyond its range is a fault
+                    self.pending_faults.append(f"JOINT_LIMIT({name}: {node.status.position_rad:.3f} rad)")
+        latest = self.latest
+        for name, sender in self._sensor_sender.items():  # a sensor frame missing as long as a lost node's status
+            node = self.nodes[sender]
+            if node.was_operational and tick - max(latest.get(name, (-1,))[0], node.operational_since) >= self.lost_ticks:
+                self.pending_faults.append(f"SENSOR_LOST({name})")
+            elif name in latest:
+                ages.append(tick - latest[name][0])
+        self._supervise_bus(tick)
         measurements, fresh = self._measurements(tick)
         self.measurements = measurements
         estimate = self.estimator.update(measurements) if measurements is not None else None
         self._check_fall(measurements)
         healthy = operational and max(ages) <= 2 and not self.pending_faults
+        quiet_bus = tick - self._error_frame_tick >= self.safety.integrity_window_ticks  # F11: no new step
         # The gait of the state the FSM is in: whether the step is ready, whether the swing is done.
         before = self.fsm.state
         ready = done = landed = False
@@ -208,11 +348,13 @@ class ControllerCore:
         inputs = FsmInputs(
             nodes_operational=operational,
             nodes_healthy=healthy,
-            data_fresh=fresh,
+            data_fresh=fresh and quiet_bus,
             sticks_loaded=sticks_loaded,
             sticks_ahead=ready,
             swing_done=done,
             fault=self.pending_faults[0] if self.pending_faults else None,
+            other_faults=tuple(self.pending_faults[1:]),
+            protective_stop=self._overrun_stop,
             reset=self.reset_requested,
             start=self.walk_requested,
             stop=self.stop_requested,
@@ -220,6 +362,7 @@ class ControllerCore:
         n_transitions = len(self.fsm.transitions)
         state = self.fsm.step(tick, inputs)
         events += [f"{t.source.name} -> {t.target.name}: {t.cause}" for t in self.fsm.transitions[n_transitions:]]
+        self._overrun_stop = None
         if self.reset_requested:
             frames.append(("NMT_COMMAND", (int(NmtCommand.FAULT_RESET), 0)))
             self.reset_requested = False
@@ -229,13 +372,14 @@ class ControllerCore:
         finished = self._gait_transition(tick, before, state, estimate, measurements, landed, events)
         self.pending_faults.clear()
         self._command(state, frames, measurements)
+        self.syncs += 1
         return TickResult(tick, state, frames, estimate, events, finished)
 
     def _check_fall(self, m: Measurements | None) -> None:
-        """FAULTS.md F18: the trunk tilted beyond ``fall_tilt_rad`` for two ticks in a row."""
+        """FAULTS.md F18: the trunk tilted beyond ``fall_tilt_rad`` for ``fall_ticks`` ticks in a row."""
         tilt = max(abs(float(m.trunk_rpy_rad[0])), abs(float(m.trunk_rpy_rad[1]))) if m is not None else 0.0
         self._tilted_ticks = self._tilted_ticks + 1 if tilt > self.fall_tilt_rad else 0
-        if self._tilted_ticks >= 2:
+        if self._tilted_ticks >= self.safety.fall_ticks:
             self.pending_faults.append(f"FALL(trunk tilt {tilt:.2f} rad)")
 
     def _gait_transition(

@@ -40,6 +40,7 @@ class FsmInputs:
     sticks_ahead: bool = False  # both tips placed ahead of the stance foot
     swing_done: bool = False  # the swing's trajectory has ended and the swing foot carries load
     fault: str | None = None  # cause of a fault detected this tick (latches FAULT)
+    other_faults: tuple[str, ...] = ()  # further causes detected in the same tick (kept with the first)
     protective_stop: str | None = None  # cause of a protective stop this tick (HOLD)
     start: bool = False  # operator: walk
     stop: bool = False  # operator: stop walking
@@ -81,11 +82,12 @@ class GaitFsm:
         # remembered but not re-announced).
         if i.fault is not None:
             if s != GaitState.FAULT:
-                self._fault_causes = [i.fault]
+                self._fault_causes = []
                 self._stop_pending = False
                 self._go(tick, GaitState.FAULT, i.fault)
-            elif i.fault not in self._fault_causes:
-                self._fault_causes.append(i.fault)
+            for cause in (i.fault, *i.other_faults):
+                if cause not in self._fault_causes:
+                    self._fault_causes.append(cause)
             return self.state
         if s == GaitState.FAULT:
             if i.reset and self._healthy_ticks >= self.reset_healthy_ticks and i.sticks_loaded:

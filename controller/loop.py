@@ -69,11 +69,17 @@ class LockstepLoop:
         }
 
     def _send(self, name: str, values: tuple) -> None:
-        try:
-            self.bus.send(self.tx.message(name, values))
-            self.report.frames_sent += 1
-        except can.CanError:
-            self.report.send_failures += 1
+        """Send one frame; a failed send is retried once within the tick (a full transmit queue
+        clears in microseconds), and a second failure is reported to the core (FAULTS.md F12, F13)."""
+        msg = self.tx.message(name, values)
+        for _ in range(2):
+            try:
+                self.bus.send(msg)
+                self.report.frames_sent += 1
+                return
+            except can.CanError:
+                self.report.send_failures += 1
+        self.core.send_failed(self.tick)
 
     def _drain(self, tick: int, until_ns: int, expected: set[str]) -> None:
         """Read this tick's frames until every expected node has reported or the deadline.
@@ -102,8 +108,10 @@ class LockstepLoop:
                 continue
             read += 1
             result = receive(msg)
-            if type(result) is Decoded and result.message.sender != "CONTROLLER":
-                core_receive(result, tick)
+            if type(result) is not Decoded:
+                self.core.rejected(result, tick)
+                continue
+            if result.message.sender != "CONTROLLER" and core_receive(result, tick):  # a late frame is not this tick's
                 frame_id = result.message.frame_id
                 node = status_ids.get(frame_id)
                 if node is not None:
@@ -182,7 +190,10 @@ class RealtimeLoop(LockstepLoop):
         self.timer = TickTimer(self.clock, TICK_MS * 1_000_000)
 
     def step(self) -> TickResult:
+        skipped_before = self.timer.skipped
         k = self.timer.wait()
         start = self.clock.now_ns()
         self.stats.skipped = self.timer.skipped
+        if self.timer.skipped > skipped_before:
+            self.core.overran(k, self.timer.skipped - skipped_before)
         return self._tick(k, start, start + self.read_window_ns, self.timer.last_lateness_ns)

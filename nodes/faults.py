@@ -40,31 +40,37 @@ class _Fault:
 class FaultInjector:
     def __init__(self, faults: dict[str, FaultConfig], catalog: Catalog, rng: np.random.Generator) -> None:
         self.rng = rng
+        self.catalog = catalog
         self.counts: Counter[str] = Counter()
         self._faults: list[_Fault] = []
-        for name, cfg in faults.items():
-            spec = raw = None
-            if cfg.message is not None:
-                try:
-                    spec = catalog.by_name(cfg.message)
-                except ProtocolError:
-                    raise FaultConfigError(f"nodes.faults.{name}.message: unknown message {cfg.message!r}") from None
-                if spec.sender != cfg.node:
-                    raise FaultConfigError(f"nodes.faults.{name}.message: {cfg.message} is sent by {spec.sender}, not {cfg.node}")
-            if cfg.kind == "out_of_range":
-                assert spec is not None and cfg.signal is not None and cfg.value is not None
-                try:
-                    sig = spec.signal(cfg.signal)
-                except KeyError:
-                    raise FaultConfigError(f"nodes.faults.{name}.signal: {cfg.message} has no signal {cfg.signal!r}") from None
-                raw = round((cfg.value - sig.offset) / sig.scale)
-                if sig.raw_min <= raw <= sig.raw_max or not sig.raw_min_representable <= raw <= sig.raw_max_representable:
-                    raise FaultConfigError(
-                        f"nodes.faults.{name}.value: {cfg.value} must lie outside {cfg.message}.{cfg.signal}'s range "
-                        f"[{sig.minimum}, {sig.maximum}] and within its {sig.length} bits"
-                    )
-            self._faults.append(_Fault(name, cfg, spec, raw))
         self._delayed: dict[int, list[tuple[MessageSpec, bytes]]] = defaultdict(list)
+        for name, cfg in faults.items():
+            self.add(name, cfg)
+
+    def add(self, name: str, cfg: FaultConfig) -> None:
+        """One more fault (the configured ones are added at start; a test may add one later)."""
+        catalog = self.catalog
+        spec = raw = None
+        if cfg.message is not None:
+            try:
+                spec = catalog.by_name(cfg.message)
+            except ProtocolError:
+                raise FaultConfigError(f"nodes.faults.{name}.message: unknown message {cfg.message!r}") from None
+            if spec.sender != cfg.node:
+                raise FaultConfigError(f"nodes.faults.{name}.message: {cfg.message} is sent by {spec.sender}, not {cfg.node}")
+        if cfg.kind == "out_of_range":
+            assert spec is not None and cfg.signal is not None and cfg.value is not None
+            try:
+                sig = spec.signal(cfg.signal)
+            except KeyError:
+                raise FaultConfigError(f"nodes.faults.{name}.signal: {cfg.message} has no signal {cfg.signal!r}") from None
+            raw = round((cfg.value - sig.offset) / sig.scale)
+            if sig.raw_min <= raw <= sig.raw_max or not sig.raw_min_representable <= raw <= sig.raw_max_representable:
+                raise FaultConfigError(
+                    f"nodes.faults.{name}.value: {cfg.value} must lie outside {cfg.message}.{cfg.signal}'s range "
+                    f"[{sig.minimum}, {sig.maximum}] and within its {sig.length} bits"
+                )
+        self._faults.append(_Fault(name, cfg, spec, raw))
 
     def __bool__(self) -> bool:
         return bool(self._faults)

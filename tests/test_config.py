@@ -269,7 +269,7 @@ def test_python_tags_are_never_executed(monkeypatch):
 def test_bundled_files_load():
     default = load_config(default_config_path())
     assert default.bus == BusConfig(interface="virtual", channel="aider", bitrate_bit_s=1_000_000)
-    assert default.protocol == ProtocolConfig(max_delta_counter=2)
+    assert default.protocol == ProtocolConfig(max_delta_counter=3)
     assert default.bus.receive_own_messages is False
     assert default.sim is not None and default.sim.model.patient.mass_kg == 70.0
 

@@ -1,0 +1,400 @@
+"""The fault table of FAULTS.md, one case per row that applies (docs/SAFETY.md lists every row).
+
+Each case walks the HHEA through the whole pipeline (controller, CAN frames on the in-process bus,
+node boards, simulation; tools/safety/rig.py) to a point of the gait (mid-swing or mid-stance),
+injects its fault at the bus (``FaultBus``, layer BW), in the node boards (layer NE) or in the
+controller (layer MP) from tick ``t0``, and checks: the tick the controller detected it (the FSM's
+entry into HOLD or FAULT) against the row's budget D from ``t0``, the tick from which the four
+joint commands on the bus are HOLD against R, the FSM state and cause, exactly one record of the
+entry, and the invariants I1-I7 on every tick of the run (tools/safety/oracle.py). Budgets come
+from the configuration, not from literals (``controller.safety``).
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import can
+import numpy as np
+import pybullet
+import pytest
+
+from config import default_config_path, load_config
+from protocol.codec import Codec, RejectReason
+from protocol.enums import GaitState
+from protocol.faultbus import BusFault, ids_of
+from tools.safety.rig import FaultRig
+
+CFG = load_config(default_config_path())
+SAFETY = CFG.controller.safety
+CATALOG = Codec().catalog
+LOST = SAFETY.lost_ticks
+NODE_FRAMES = {n: frozenset(m.frame_id for m in CATALOG.sent_by(n)) for n in CATALOG.joint_nodes}
+STATUS = {n: CATALOG.message("JOINT_STATUS", n).frame_id for n in CATALOG.joint_nodes}
+ALL_NODE_FRAMES = frozenset().union(*NODE_FRAMES.values())
+
+
+def at(phase: str, seed: int = 3) -> FaultRig:
+    """A rig walking, stopped at ``phase``: mid-swing (a few ticks into the first swing) or
+    mid-stance (ten ticks into the double support after its landing)."""
+    rig = FaultRig(CFG, seed=seed)
+    rig.walk_to(GaitState.SWING_RIGHT)
+    if phase == "swing":
+        rig.run(3)
+    else:
+        assert rig.run_until(lambda r: r.state == GaitState.DOUBLE_SUPPORT, 300), rig.state
+        rig.run(10)
+    return rig
+
+
+def stops_from(rig: FaultRig, t0: int):
+    return [s for s in rig.oracle.stops if s.tick >= t0]
+
+
+def expect_stop(rig: FaultRig, t0: int, state: GaitState, cause: str, detect: int, react: int = 1):
+    """Exactly one entry into ``state`` since ``t0``, with ``cause``, within ``detect`` ticks of
+    ``t0``, and four HOLD commands on the bus within ``react`` ticks of it; no invariant broken.
+    ``cause`` is a regular expression matched at the start of the recorded cause."""
+    stops = stops_from(rig, t0)
+    assert len(stops) == 1, stops
+    stop = stops[0]
+    assert stop.state == state and re.match(cause, stop.cause), stop
+    assert stop.tick - t0 <= detect, (stop, t0)
+    assert stop.hold_on_bus_tick is not None and stop.hold_on_bus_tick - stop.tick <= react, stop
+    assert rig.state == state
+    assert rig.oracle.violations == []
+    return stop
+
+
+def expect_walking_on(rig: FaultRig, t0: int) -> None:
+    """No HOLD or FAULT since ``t0``, a step landed since, and no invariant broken."""
+    assert stops_from(rig, t0) == [], stops_from(rig, t0)
+    assert any(s.landed and s.end_tick >= t0 for s in rig.core.steps), [(s.index, s.end_tick) for s in rig.core.steps]
+    assert rig.oracle.violations == []
+
+
+@dataclass(frozen=True)
+class Case:
+    row: str
+    phase: str
+    inject: Callable[[FaultRig, int], None]
+    state: GaitState
+    cause: str
+    detect: int  # D: ticks from t0 (the first faulty tick) to the entry into HOLD or FAULT
+    react: int = 1  # R: ticks from the entry to four HOLD commands on the bus
+    ticks: int = 20
+
+    @property
+    def id(self) -> str:
+        return f"{self.row}-{self.phase}-{re.match(r'[A-Z_]+', self.cause).group()}"
+
+
+def silence(node: str) -> Callable[[FaultRig, int], None]:
+    """Every frame of ``node`` lost from t0 (its board dead; the nodes' process hosts all four)."""
+    return lambda rig, t0: rig.inject_bus(BusFault("drop", frame_ids=NODE_FRAMES[node], start_tick=t0, name=f"dead {node}"))
+
+
+def kill_nodes(rig: FaultRig, t0: int) -> None:
+    rig.nodes_running = False
+
+
+def burst(k: int, node: str = "RIGHT_KNEE") -> Callable[[FaultRig, int], None]:
+    return lambda rig, t0: rig.inject_bus(BusFault("drop", frame_ids={STATUS[node]}, start_tick=t0, burst=k, times=1))
+
+
+def delay(d: int, node: str = "LEFT_HIP") -> Callable[[FaultRig, int], None]:
+    return lambda rig, t0: rig.inject_bus(BusFault("delay", frame_ids=NODE_FRAMES[node], start_tick=t0, delay_ticks=d))
+
+
+def bus_rule(kind: str, ids: frozenset[int], times: int | None = None, **kw) -> Callable[[FaultRig, int], None]:
+    return lambda rig, t0: rig.inject_bus(BusFault(kind, frame_ids=ids, start_tick=t0, times=times, **kw))
+
+
+def node_fault(kind: str, node: str, **values) -> Callable[[FaultRig, int], None]:
+    return lambda rig, t0: rig.inject_node(kind, node, start_tick=t0, **values)
+
+
+def send_failures(rig: FaultRig, t0: int) -> None:
+    """Every command and heartbeat send fails for two ticks (the SYNCs go out, so the nodes' frames
+    keep coming and the send failures alone are the cause)."""
+    ids = frozenset(m.frame_id for m in CATALOG.sent_by("CONTROLLER") if m.name != "SYNC")
+    rig.inject_bus(BusFault("send_failure", "tx", frame_ids=ids, start_tick=t0, end_tick=t0 + 2, name="bus-off"))
+
+
+def overruns(skipped: list[int]) -> Callable[[FaultRig, int], None]:
+    """The real-time loop's report of overruns into the next ticks (what RealtimeLoop.step does)."""
+    def inject(rig: FaultRig, t0: int) -> None:
+        original = rig.loop.step
+
+        def step():
+            k = rig.tick + 1
+            if k - t0 < len(skipped) and skipped[k - t0]:
+                rig.core.overran(k, skipped[k - t0])
+            return original()
+
+        rig.loop.step = step
+    return inject
+
+
+FAULT, HOLD = GaitState.FAULT, GaitState.HOLD
+CASES = [
+    # F1: a node gone (the whole nodes process, or one board): no valid status for lost_ticks ticks.
+    Case("F1", "swing", kill_nodes, FAULT, "NODE_LOST", detect=LOST - 1),
+    Case("F1", "stance", kill_nodes, FAULT, "NODE_LOST", detect=LOST - 1),
+    Case("F1", "swing", silence("LEFT_KNEE"), FAULT, r"NODE_LOST\(LEFT_KNEE\)", detect=LOST - 1),
+    Case("F1", "stance", silence("RIGHT_HIP"), FAULT, r"NODE_LOST\(RIGHT_HIP\)", detect=LOST - 1),
+    # F3: a burst of k >= lost_ticks lost statuses of one node: FAULT at the tick of the 3rd miss, whatever k.
+    *[Case("F3", "swing", burst(k), FAULT, r"NODE_LOST\(RIGHT_KNEE\)", detect=LOST - 1) for k in (3, 5, 10)],
+    # F4: frames late by d >= lost_ticks ticks count as missing: the node is lost.
+    *[Case("F4", "stance", delay(d), FAULT, r"NODE_LOST\(LEFT_HIP\)", detect=LOST - 1) for d in (3, 5)],
+    # F6, F7, F8: two damaged, reordered or masqueraded frames within the integrity window.
+    Case("F6", "swing", bus_rule("reorder", frozenset({STATUS["LEFT_HIP"], STATUS["RIGHT_HIP"]}), times=2), FAULT,
+         "FRAME_INTEGRITY", detect=2),
+    Case("F7", "swing", bus_rule("corrupt", frozenset({STATUS["LEFT_KNEE"]}), times=2), FAULT, "FRAME_INTEGRITY", detect=1),
+    Case("F7", "stance", bus_rule("corrupt", ALL_NODE_FRAMES, times=2, bits=3), FAULT, "FRAME_INTEGRITY", detect=1),
+    Case("F8", "stance", bus_rule("masquerade", frozenset({STATUS["LEFT_HIP"]}), times=2, to_id=STATUS["LEFT_KNEE"]), FAULT,
+         "FRAME_INTEGRITY", detect=1),
+    # F9: a frozen application re-sends its last frames: repeated counters, lost after lost_ticks.
+    Case("F9", "swing", node_fault("freeze", "RIGHT_HIP"), FAULT, r"NODE_LOST\(RIGHT_HIP\)", detect=LOST - 1),
+    # F10: frames of the wrong length count as missing (the F2 path): lost after lost_ticks.
+    Case("F10", "stance", bus_rule("truncate", frozenset({STATUS["LEFT_KNEE"]})), FAULT, r"NODE_LOST\(LEFT_KNEE\)", detect=LOST - 1),
+    # F12, F13: sends failing (after one retry) in send_failure_ticks ticks in a row.
+    Case("F12", "swing", send_failures, FAULT, "BUS_SEND_FAILED", detect=SAFETY.send_failure_ticks),
+    # F15: a sensor value out of its range on every frame: the frame is invalid, missing, then lost.
+    Case("F15", "stance", node_fault("out_of_range", "LEFT_HIP", message="STICK_LEFT", signal="force_N", value=-500.0), FAULT,
+         r"SENSOR_LOST\(STICK_LEFT\)", detect=LOST - 1),
+    # F23, F24: a node reboots; a drive faults (its EMCY): FAULT within a tick.
+    # (A rebooted node's boot-up frame restarts its counter: the receiver accepts it or, when the
+    # jump is beyond max_delta_counter, rejects it and re-synchronises, and the pre-operational
+    # heartbeat right after it is the detection.)
+    Case("F23", "swing", node_fault("reboot", "LEFT_KNEE"), FAULT, r"NODE_(REBOOTED|NOT_OPERATIONAL)\(LEFT_KNEE\)", detect=1),
+    Case("F24", "stance", node_fault("drive_fault", "RIGHT_KNEE"), FAULT, "EMCY 0x2310 from RIGHT_KNEE", detect=0),
+    # F25: overruns reported by the real-time loop: 3 within the window, or one beyond overrun_max_ticks: HOLD.
+    Case("F25", "stance", overruns([1, 0, 1, 0, 1]), HOLD, "OVERRUN", detect=4, react=0),
+    Case("F25", "swing", overruns([SAFETY.overrun_max_ticks + 7]), HOLD, "OVERRUN", detect=0, react=0),
+]
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda c: c.id)
+def test_fault_row(case: Case):
+    with at(case.phase) as rig:
+        t0 = rig.tick + 1
+        case.inject(rig, t0)
+        rig.run(case.ticks)
+        expect_stop(rig, t0, case.state, case.cause, case.detect, case.react)
+
+
+# -- rows whose fault is tolerated -----------------------------------------------------------------
+
+
+def test_F2_random_loss_is_ridden_out_with_last_values():
+    """2 % of the nodes' frames lost at random: single losses use the last value (age 1), no
+    step starts on stale data (I2, by the oracle), the walk goes on; a FAULT comes only from a
+    message that really lost its last lost_ticks frames in a row (the F1 path)."""
+    with at("stance") as rig:
+        t0 = rig.tick + 1
+        rig.inject_bus(BusFault("drop", frame_ids=ALL_NODE_FRAMES, start_tick=t0, probability=0.02, name="loss"))
+        rig.run(400)
+        assert rig.bus.injected["loss:drop"] > 50 and rig.loop.rx.stats.lost > 50
+        dropped = {(tick, fid) for tick, kind, fid in rig.bus.log if kind == "drop"}
+        for stop in stops_from(rig, t0):
+            what = re.fullmatch(r"(NODE|SENSOR)_LOST\((\w+)\)", stop.cause)
+            assert what, stop
+            fid = STATUS[what[2]] if what[1] == "NODE" else CATALOG.by_name(what[2]).frame_id
+            assert all((t, fid) in dropped for t in range(stop.tick - LOST + 1, stop.tick + 1)), stop
+        assert any(s.landed and s.end_tick >= t0 for s in rig.core.steps)
+        assert rig.oracle.violations == []
+
+
+@pytest.mark.parametrize("k", [1, 2])
+def test_F3_a_short_burst_is_tolerated_and_starts_no_step_on_stale_data(k):
+    with at("stance") as rig:
+        t0 = rig.tick + 1
+        burst(k)(rig, t0)
+        rig.run(300)
+        expect_walking_on(rig, t0)
+
+
+@pytest.mark.parametrize("d", [1, 2])
+def test_F4_frames_late_by_one_or_two_ticks_are_old_data_and_start_no_step(d):
+    """Frames of one node all late by d < lost_ticks: the controller knows them for the tick they
+    were sent for (from their counters), holds on (age <= 2) but starts no step, and never
+    applies an old frame after a newer one."""
+    with at("stance") as rig:
+        t0 = rig.tick + 1
+        swings_before = len(rig.core.steps)
+        delay(d)(rig, t0)
+        rig.run(200)
+        assert stops_from(rig, t0) == [] and rig.oracle.violations == []
+        assert len(rig.core.steps) == swings_before  # no step on old data
+        assert rig.tick - rig.core.nodes["LEFT_HIP"].status_tick == d
+
+
+def test_F5_duplicates_are_discarded_and_the_walk_goes_on():
+    with at("stance") as rig:
+        t0 = rig.tick + 1
+        rig.inject_bus(BusFault("duplicate", frame_ids=ALL_NODE_FRAMES, start_tick=t0, end_tick=t0 + 300))
+        rig.run(300)
+        assert rig.loop.rx.stats.rejected[RejectReason.REPEATED] > 1000
+        expect_walking_on(rig, t0)
+
+
+@pytest.mark.parametrize("kind", ["reorder", "corrupt"])
+def test_F6_F7_a_single_bad_frame_is_discarded_without_a_fault(kind):
+    with at("swing") as rig:
+        t0 = rig.tick + 1
+        rig.inject_bus(BusFault(kind, frame_ids={STATUS["LEFT_HIP"]}, start_tick=t0, times=1))
+        rig.run(300)
+        assert rig.loop.rx.stats.rejected_total == 1
+        expect_walking_on(rig, t0)
+
+
+def test_F10_foreign_frames_are_counted_and_ignored():
+    """Unknown IDs, extended and remote frames, random payloads on other IDs: all counted, none
+    reaches the controller, the walk goes on."""
+    with at("stance") as rig:
+        t0 = rig.tick + 1
+        rng = np.random.default_rng(5)
+        ours = {m.frame_id for m in CATALOG.messages}
+        foreign = [i for i in range(0x800) if i not in ours]
+        with rig.foreign() as intruder:
+            for _ in range(300):
+                for _ in range(5):
+                    n = int(rng.integers(0, 9))
+                    intruder.send(can.Message(arbitration_id=int(rng.choice(foreign)), data=rng.bytes(n), is_extended_id=False))
+                intruder.send(can.Message(arbitration_id=int(rng.integers(0, 2**29)), data=rng.bytes(8), is_extended_id=True))
+                rig.step()
+        assert rig.loop.rx.stats.rejected_total >= 1800
+        expect_walking_on(rig, t0)
+
+
+def test_F11_an_error_frame_lets_no_step_start_within_the_window():
+    with at("stance") as rig:
+        window = SAFETY.integrity_window_ticks
+        starts = []
+        for _ in range(400):  # an error frame every 2 windows
+            if rig.tick % (2 * window) == 0:
+                rig.inject_bus(BusFault("error_frame", start_tick=rig.tick + 1, times=1, burst=3))
+            rig.step()
+            if rig.results[-1].landed is None and rig.core.steps and rig.core.steps[-1].swing_tick == rig.tick:
+                starts.append(rig.tick)
+        assert starts, "no step started at all"
+        assert all((t - 1) % (2 * window) >= window for t in starts), starts  # error frames come at ticks 1 mod 2w
+        assert stops_from(rig, 0) == [] and rig.oracle.violations == []
+
+
+def test_F13_a_send_failing_once_is_retried_within_the_tick():
+    with at("swing") as rig:
+        t0 = rig.tick + 1
+        rig.inject_bus(BusFault("send_failure", "tx", start_tick=t0, times=3, name="enobufs"))
+        rig.run(200)
+        assert rig.loop.report.send_failures == 3  # each retried once, successfully
+        expect_walking_on(rig, t0)
+
+
+def test_F25_one_overrun_is_only_counted():
+    with at("stance") as rig:
+        t0 = rig.tick + 1
+        overruns([1])(rig, t0)
+        rig.run(300)
+        expect_walking_on(rig, t0)
+
+
+# -- rows checked at the controller (layer MP) ------------------------------------------------------
+
+
+def test_F16_a_measured_joint_beyond_its_limit_is_a_fault():
+    """A joint encoder reading beyond the joint's range by more than the envelope's allowance
+    (a valid frame, the value in the DBC's range): FAULT. (Commands beyond: test_controller_envelope.)"""
+    with at("stance") as rig:
+        t0 = rig.tick + 1
+        excess = CFG.controller.envelope.position_excess_rad
+        rig.inject_node("stuck_encoder", "LEFT_KNEE", start_tick=t0)  # then its reading is forced beyond the limit
+        port = rig.host.ports["LEFT_KNEE"]
+        original = rig.host._report
+
+        def report(tick):
+            if tick >= t0:
+                port.stuck_position = CFG.controller.legs.knee_max_rad + 2 * excess
+            original(tick)
+
+        rig.host._report = report
+        rig.run(10)
+        expect_stop(rig, t0, FAULT, r"JOINT_LIMIT\(LEFT_KNEE", detect=0)
+
+
+def test_F17_a_setpoint_jump_is_clamped_on_the_bus_and_faults():
+    with at("swing") as rig:
+        t0 = rig.tick + 1
+        gait = rig.core.gait
+        original = gait.swing
+
+        def swing(est, m):
+            out = original(est, m)
+            if rig.tick == t0:
+                gait.targets[1] += 3 * CFG.controller.envelope.max_step_rad
+            return out
+
+        gait.swing = swing
+        rig.run(10)
+        expect_stop(rig, t0, FAULT, r"ENVELOPE\(knee_l: setpoint step", detect=1)  # I1 held on the bus (oracle)
+
+
+def test_F18_a_push_that_topples_the_hhea_is_a_fall():
+    """A 600 N backward push on the trunk for 0.3 s in double support: the HHEA falls; the trunk's
+    tilt beyond fall_tilt_rad for fall_ticks ticks is a FALL, FAULT, and the roll-out ends."""
+    with at("stance") as rig:
+        world = rig.host.world
+        step = world.step
+        pushing = {"steps": int(0.3 / world.dt)}
+
+        def pushed():
+            if pushing["steps"] > 0:
+                world.client.applyExternalForce(world.robot, -1, [-600.0, 0.0, 0.0], [0.0, 0.0, 0.2], pybullet.LINK_FRAME)
+                pushing["steps"] -= 1
+            step()
+
+        world.step = pushed
+        t0 = rig.tick + 1
+        rig.run(150)
+        expect_stop(rig, t0, FAULT, "FALL", detect=150)
+        assert rig.host.patient.fall is not None  # the simulation's ground truth agrees
+
+
+def test_F26_a_wall_clock_jump_changes_nothing(monkeypatch):
+    """The loop runs on the monotonic clock: the same walk with time.time jumping by an hour
+    either way goes through the same states."""
+    def states(jump: float) -> list[GaitState]:
+        if jump:
+            real = time.time
+            calls = {"n": 0}
+
+            def jumping() -> float:
+                calls["n"] += 1
+                return real() + (jump if calls["n"] % 2 else -jump)
+
+            monkeypatch.setattr(time, "time", jumping)
+        with FaultRig(CFG, seed=3) as rig:
+            rig.core.request_walk()
+            rig.run(200)
+            out = [r.state for r in rig.results]
+        monkeypatch.undo()
+        return out
+
+    assert states(3600.0) == states(0.0)
+
+
+def test_F31_simultaneous_faults_make_one_fault_record_with_every_cause():
+    """A drive fault and a lost node in the same tick: one FAULT record, both causes kept."""
+    with at("swing") as rig:
+        t0 = rig.tick + 1
+        silence("RIGHT_KNEE")(rig, t0)  # lost at t0 + lost_ticks - 1 ...
+        rig.inject_node("drive_fault", "LEFT_HIP", start_tick=t0 + LOST - 1)  # ... with this drive fault
+        rig.run(10)
+        stop = expect_stop(rig, t0, FAULT, "", detect=LOST - 1)
+        causes = rig.core.fsm.fault_causes
+        assert any("LEFT_HIP" in c for c in causes) and any("RIGHT_KNEE" in c for c in causes), causes
+        assert stop.cause == causes[0]

@@ -1,0 +1,1 @@
+"""Safety verification: the invariants of FAULTS.md as an oracle, the fault rig and the soak."""
