@@ -27,6 +27,7 @@ SUBCOMMANDS = {
     "walk": "tools.cli.walk",
     "trace": "tools.cli.trace",
     "experiment": "tools.cli.experiment",
+    "soak": "tools.cli.soak",
 }
 
 

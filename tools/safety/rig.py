@@ -33,8 +33,9 @@ _channels = itertools.count()
 class FaultRig:
     def __init__(
         self, cfg: Config, *, seed: int = 0, bus_faults: Iterable[BusFault] = (), tick_timeout_s: float = 0.05,
-        mode: str = "sagittal",
+        mode: str = "sagittal", keep_results: bool = True,
     ) -> None:
+        """``keep_results``: keep every tick's result in :attr:`results` (a soak does not)."""
         channel = f"fault-rig-{next(_channels)}"
         self.cfg = cfg = with_overrides(cfg, {"bus.channel": channel, "sim.mode": mode})
         self.listener = virtual_bus(channel)
@@ -53,6 +54,8 @@ class FaultRig:
         )
         self.oracle = Oracle(self.core)
         self.results: list[TickResult] = []
+        self.keep_results = keep_results
+        self.last: TickResult | None = None
         self.nodes_running = True  # False: the node process is gone (F1)
 
     def _pump(self) -> None:
@@ -90,7 +93,9 @@ class FaultRig:
         while (m := self.listener.recv(timeout=0)) is not None:
             frames.append(m)
         self.oracle.check(result, frames)
-        self.results.append(result)
+        self.last = result
+        if self.keep_results:
+            self.results.append(result)
         return result
 
     def run(self, ticks: int) -> list[TickResult]:
