@@ -15,7 +15,8 @@ state every tick and runs the gait: in DOUBLE_SUPPORT and the swings the legs fo
 configuration's ``controller.safety`` (docs/SAFETY.md lists every row of FAULTS.md). FAULT latches
 on a lost node (no status for ``lost_ticks`` ticks), a drive fault or a fault EMCY, a node that
 reboots, a command beyond the safety envelope, a fall (trunk tilt beyond ``fall_tilt_rad`` for
-``fall_ticks`` ticks, F18), a measured joint angle beyond its limit by more than the
+``fall_ticks`` ticks, F18), a joint that does not follow its setpoints or whose encoder is stuck
+(F14), a measured joint angle beyond its limit by more than the
 envelope's ``position_excess_rad`` (F16), a sensor frame missing as long as a lost node's status,
 ``integrity_errors`` node frames rejected for their CRC or counter
 sequence within ``integrity_window_ticks`` (F6-F8), and sends failing in ``send_failure_ticks`` ticks
@@ -135,6 +136,7 @@ class ControllerCore:
         self._failed_sends: deque[int] = deque(maxlen=safety.send_failure_ticks)  # ticks with a failed send
         self._overruns: deque[int] = deque()  # ticks that followed an overrun
         self._overrun_stop: str | None = None  # a protective stop asked by the loop's timing
+        self._follow: deque[tuple[list[float], list[float]]] = deque(maxlen=max(safety.following_ticks, safety.stuck_ticks + 1))
         self.walk_requested = False
         self.stop_requested = False
         self.steps: list[StepRecord] = []
@@ -247,6 +249,26 @@ class ControllerCore:
         elif len(self._overruns) >= s.overrun_limit:
             self._overrun_stop = f"OVERRUN({len(self._overruns)} in {s.overrun_window_ticks} ticks)"
 
+    def _check_following(self, m: Measurements | None, fresh: bool) -> None:
+        """F14: while the joints track, each measured angle against last tick's setpoint. A joint
+        far from it for ``following_ticks`` ticks does not follow; an encoder whose reading stays
+        exactly the same for ``stuck_ticks`` ticks while its setpoint moves ``stuck_motion_rad``
+        is stuck (its joint moves, its reading does not)."""
+        if self._targets is None or m is None or not fresh:
+            self._follow.clear()
+            return
+        s, window = self.safety, self._follow
+        window.append((m.joint_position_rad.tolist(), self._targets.tolist()))
+        for j, name in enumerate(self.node_names):
+            if len(window) >= s.following_ticks and all(
+                    abs(q[j] - c[j]) > s.following_error_rad for q, c in list(window)[-s.following_ticks:]):
+                self.pending_faults.append(f"FOLLOWING_ERROR({name})")
+            if len(window) > s.stuck_ticks:
+                recent = list(window)[-(s.stuck_ticks + 1):]
+                readings, setpoints = [q[j] for q, _ in recent], [c[j] for _, c in recent]
+                if max(readings) == min(readings) and max(setpoints) - min(setpoints) >= s.stuck_motion_rad:
+                    self.pending_faults.append(f"ENCODER_STUCK({name})")
+
     def _supervise_bus(self, tick: int) -> None:
         """The integrity window and the failed sends (see the module doc)."""
         s = self.safety
@@ -327,6 +349,7 @@ class ControllerCore:
         self.measurements = measurements
         estimate = self.estimator.update(measurements) if measurements is not None else None
         self._check_fall(measurements)
+        self._check_following(measurements, fresh)
         healthy = operational and max(ages) <= 2 and not self.pending_faults
         quiet_bus = tick - self._error_frame_tick >= self.safety.integrity_window_ticks  # F11: no new step
         # The gait of the state the FSM is in: whether the step is ready, whether the swing is done.
