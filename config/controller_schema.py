@@ -164,8 +164,6 @@ class SafetyConfig:
     overrun_limit: int = field_spec(doc="This many overrun ticks ...", min=1, max=50)
     overrun_window_ticks: int = field_spec(doc="... within this many ticks, or one overrun of more than overrun_max_ticks: HOLD (F25).", min=10, max=1000)
     overrun_max_ticks: int = field_spec(doc="An overrun that skips more ticks than this: HOLD at once (F25: 3).", min=1, max=50)
-    following_error_rad: float = field_spec(doc="A joint whose measured angle is this far from last tick's setpoint ...", unit="rad", min=0.05, max=1.0)
-    following_ticks: int = field_spec(doc="... for this many ticks in a row while walking: FOLLOWING_ERROR, FAULT (F14).", min=1, max=25)
     stuck_ticks: int = field_spec(doc="An encoder reading exactly the same for this many ticks ...", min=2, max=25)
     stuck_motion_rad: float = field_spec(doc="... while its setpoint moved this much: ENCODER_STUCK, FAULT (F14).", unit="rad", min=0.005, max=0.5)
     fall_tilt_rad: float = field_spec(doc="Trunk roll or pitch beyond this ...", unit="rad", min=0.1, max=1.2)

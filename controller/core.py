@@ -15,8 +15,7 @@ state every tick and runs the gait: in DOUBLE_SUPPORT and the swings the legs fo
 configuration's ``controller.safety`` (docs/SAFETY.md lists every row of FAULTS.md). FAULT latches
 on a lost node (no status for ``lost_ticks`` ticks), a drive fault or a fault EMCY, a node that
 reboots, a command beyond the safety envelope, a fall (trunk tilt beyond ``fall_tilt_rad`` for
-``fall_ticks`` ticks, F18), a joint that does not follow its setpoints or whose encoder is stuck
-(F14), a measured joint angle beyond its limit by more than the
+``fall_ticks`` ticks, F18), an encoder stuck while its setpoint moves (F14), a measured joint angle beyond its limit by more than the
 envelope's ``position_excess_rad`` (F16), a sensor frame missing as long as a lost node's status,
 ``integrity_errors`` node frames rejected for their CRC or counter
 sequence within ``integrity_window_ticks`` (F6-F8), and sends failing in ``send_failure_ticks`` ticks
@@ -30,6 +29,7 @@ allows. The loop reports what only it sees: rejected frames (:meth:`rejected`), 
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
@@ -119,6 +119,7 @@ class ControllerCore:
         self._phase: dict[int, int] = {}  # per-SYNC frame ID -> (SYNC index - counter) mod 16 of an on-time frame
         self._ages_now: dict[int, int] = {}  # per-SYNC frame ID -> its age, of the frames of this tick
         self._shift = (0, 0)  # (a uniform lateness of every node's frames, for how many ticks in a row)
+        self._late_now = False  # a late frame came this tick
         self.started = False
         self.pending_faults: list[str] = []
         self.reset_requested = False
@@ -136,7 +137,7 @@ class ControllerCore:
         self._failed_sends: deque[int] = deque(maxlen=safety.send_failure_ticks)  # ticks with a failed send
         self._overruns: deque[int] = deque()  # ticks that followed an overrun
         self._overrun_stop: str | None = None  # a protective stop asked by the loop's timing
-        self._follow: deque[tuple[list[float], list[float]]] = deque(maxlen=max(safety.following_ticks, safety.stuck_ticks + 1))
+        self._follow = _Following()
         self.walk_requested = False
         self.stop_requested = False
         self.steps: list[StepRecord] = []
@@ -158,6 +159,8 @@ class ControllerCore:
             self._phase[frame_id] = lag
             age = 0
         self._ages_now[frame_id] = age
+        if age:
+            self._late_now = True
         return age
 
     def _missed_sync(self, tick: int) -> None:
@@ -167,6 +170,9 @@ class ControllerCore:
         (F4); a uniform delay of every node is indistinguishable from it without a SYNC echo in the
         frames (docs/SAFETY.md). The frames are then this tick's: their phase moves by ``a``."""
         now, self._ages_now = self._ages_now, {}
+        if not self._late_now and self._shift[0] == 0:
+            return  # every frame of this tick on time (the common case)
+        self._late_now = False
         expected = [fid for name, node in self.nodes.items() if node.nmt == NmtState.OPERATIONAL for fid in self._per_sync[name]]
         ages = {now.get(fid) for fid in expected}
         shift = ages.pop() if len(ages) == 1 and expected else None
@@ -250,24 +256,27 @@ class ControllerCore:
             self._overrun_stop = f"OVERRUN({len(self._overruns)} in {s.overrun_window_ticks} ticks)"
 
     def _check_following(self, m: Measurements | None, fresh: bool) -> None:
-        """F14: while the joints track, each measured angle against last tick's setpoint. A joint
-        far from it for ``following_ticks`` ticks does not follow; an encoder whose reading stays
-        exactly the same for ``stuck_ticks`` ticks while its setpoint moves ``stuck_motion_rad``
-        is stuck (its joint moves, its reading does not)."""
+        """F14: while the joints track, an encoder whose reading stays exactly the same for
+        ``stuck_ticks`` ticks while its setpoint moves ``stuck_motion_rad`` is stuck (its joint
+        moves, its reading does not). A following-error rule (the measured angle far from the
+        setpoint) is not used: a step too long for the patient drives the joints off their
+        setpoints as the body falls, and would name the fall a fault of the legs. Streak
+        counters, O(1) a joint and tick."""
+        f = self._follow
         if self._targets is None or m is None or not fresh:
-            self._follow.clear()
+            f.reset()
             return
-        s, window = self.safety, self._follow
-        window.append((m.joint_position_rad.tolist(), self._targets.tolist()))
-        for j, name in enumerate(self.node_names):
-            if len(window) >= s.following_ticks and all(
-                    abs(q[j] - c[j]) > s.following_error_rad for q, c in list(window)[-s.following_ticks:]):
-                self.pending_faults.append(f"FOLLOWING_ERROR({name})")
-            if len(window) > s.stuck_ticks:
-                recent = list(window)[-(s.stuck_ticks + 1):]
-                readings, setpoints = [q[j] for q, _ in recent], [c[j] for _, c in recent]
-                if max(readings) == min(readings) and max(setpoints) - min(setpoints) >= s.stuck_motion_rad:
-                    self.pending_faults.append(f"ENCODER_STUCK({name})")
+        s = self.safety
+        q, c = m.joint_position_rad.tolist(), self._targets.tolist()
+        for j in range(4):
+            qj, cj = q[j], c[j]
+            if qj == f.reading[j]:
+                f.same[j] += 1
+                f.lo[j], f.hi[j] = min(f.lo[j], cj), max(f.hi[j], cj)
+                if f.same[j] >= s.stuck_ticks and f.hi[j] - f.lo[j] >= s.stuck_motion_rad:
+                    self.pending_faults.append(f"ENCODER_STUCK({self.node_names[j]})")
+            else:
+                f.reading[j], f.same[j], f.lo[j], f.hi[j] = qj, 0, cj, cj
 
     def _supervise_bus(self, tick: int) -> None:
         """The integrity window and the failed sends (see the module doc)."""
@@ -463,6 +472,20 @@ class ControllerCore:
                                                     float(round(c.torque_limit_nm)))))
         if moving:
             self._targets = np.array(sent)
+
+
+@dataclass
+class _Following:
+    """Per joint: ticks with the same reading, and the setpoints' range since the reading last
+    changed (ControllerCore._check_following)."""
+
+    same: list[int] = field(default_factory=lambda: [0] * 4)
+    reading: list[float] = field(default_factory=lambda: [math.nan] * 4)
+    lo: list[float] = field(default_factory=lambda: [0.0] * 4)
+    hi: list[float] = field(default_factory=lambda: [0.0] * 4)
+
+    def reset(self) -> None:
+        self.same[:], self.reading[:] = [0] * 4, [math.nan] * 4
 
 
 def _leg_index(swing: GaitState) -> int:

@@ -164,9 +164,9 @@ CASES = [
     # F12, F13: sends failing (after one retry) in send_failure_ticks ticks in a row.
     Case("F12", "swing", send_failures, FAULT, "BUS_SEND_FAILED", detect=SAFETY.send_failure_ticks),
     # F14: an encoder stuck while its joint moves (mid-swing the swing knee moves fast; in stance slowly).
-    Case("F14", "swing", node_fault("stuck_encoder", "RIGHT_KNEE"), FAULT, r"(ENCODER_STUCK|FOLLOWING_ERROR)\(RIGHT_KNEE\)",
+    Case("F14", "swing", node_fault("stuck_encoder", "RIGHT_KNEE"), FAULT, r"ENCODER_STUCK\(RIGHT_KNEE\)",
          detect=SAFETY.stuck_ticks + 2),
-    Case("F14", "swing", node_fault("stuck_encoder", "LEFT_HIP"), FAULT, r"(ENCODER_STUCK|FOLLOWING_ERROR)\(LEFT_HIP\)",
+    Case("F14", "swing", node_fault("stuck_encoder", "LEFT_HIP"), FAULT, r"ENCODER_STUCK\(LEFT_HIP\)",
          detect=SAFETY.stuck_ticks + 2),
     # F15: a sensor value out of its range on every frame: the frame is invalid, missing, then lost.
     Case("F15", "stance", node_fault("out_of_range", "LEFT_HIP", message="STICK_LEFT", signal="force_N", value=-500.0), FAULT,
