@@ -129,6 +129,11 @@ class GaitFsm:
         return self.state
 
     @property
+    def healthy_ticks(self) -> int:
+        """Ticks in a row with every node healthy (a reset leaves FAULT after ``reset_healthy_ticks``)."""
+        return self._healthy_ticks
+
+    @property
     def fault_causes(self) -> tuple[str, ...]:
         """Every cause seen since FAULT latched (the first one is the one announced)."""
         return tuple(self._fault_causes) if self.state == GaitState.FAULT else ()

@@ -147,9 +147,21 @@ def test_controller_walks_ten_gait_cycles_over_vcan0_with_the_nodes_as_a_second_
     assert _check_capture(log, summary) == list(range(summary["ticks"]))  # lock-step: every tick, in order
 
 
+# Causes of a stop that only a stalled guest gives a healthy real-time walk: the guest's one CPU,
+# shared with candump and user-mode Linux's traps, now and then stalls for more than the lost-node
+# budget (3 ticks) or overruns 3 times in 50 ticks. Such a walk is tried once more, and says so.
+GUEST_STALL = ("NODE_LOST", "SENSOR_LOST", "OVERRUN")
+
+
 def test_controller_walks_five_gait_cycles_over_vcan0_in_real_time(vcan0, tmp_path):
-    log = tmp_path / "candump.log"
-    summary, final = _walk_two_processes(vcan0, log, RT_CYCLES, lockstep=False)
+    for attempt in (1, 2):
+        log = tmp_path / f"candump-{attempt}.log"
+        summary, final = _walk_two_processes(vcan0, log, RT_CYCLES, lockstep=False)
+        stops = [e for e in summary["events"] if "-> FAULT:" in e or "-> HOLD:" in e]
+        if attempt == 1 and stops and all(any(c in e for c in GUEST_STALL) for e in stops):
+            print(f"real-time walk, attempt 1 stopped by a guest stall: {stops}; once more")
+            continue
+        break
     assert summary["mode"] == "realtime" and final["mode"] == "realtime"
     # The nodes run on until SIGTERM: after the controller's exit their command watchdog may
     # quick-stop them, holding the HHEA upright (checked: no fall at their exit).

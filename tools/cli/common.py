@@ -8,7 +8,7 @@ import signal
 import sys
 from typing import Any
 
-from config import Config, default_config_path, load_config, with_overrides
+from config import Config, ConfigError, default_config_path, load_config, with_overrides
 
 
 def add_config_options(parser: argparse.ArgumentParser) -> None:
@@ -17,9 +17,15 @@ def add_config_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--channel", help="override bus.channel (vcan0, can0, or a virtual bus name)")
 
 
-def load_cli_config(args: argparse.Namespace) -> Config:
-    """The configuration named by ``--config`` with ``--bus``/``--channel`` applied (validated)."""
-    cfg = load_config(args.config or default_config_path())
+def load_cli_config(args: argparse.Namespace, *, needs: tuple[str, ...] = ()) -> Config:
+    """The configuration named by ``--config`` with ``--bus``/``--channel`` applied (validated);
+    an optional section the command ``needs`` that the file lacks is an error naming file and key,
+    raised before anything is opened."""
+    path = args.config or default_config_path()
+    cfg = load_config(path)
+    for section in needs:
+        if getattr(cfg, section) is None:
+            raise ConfigError(f"missing section (aider-exo {args.command} needs it)", key=section, source=str(path))
     overrides: dict[str, Any] = {}
     if args.bus:
         overrides["bus.interface"] = args.bus

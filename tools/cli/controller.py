@@ -30,6 +30,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cpu", type=int, help="real time: pin the loop to this CPU")
     p.add_argument("--walk", action="store_true", help="the operator's start: walk once standing, until SIGINT/SIGTERM")
     p.add_argument("--cycles", type=positive_int, metavar="N", help="walk N gait cycles once standing, then stop and exit")
+    p.add_argument("--reset", action="store_true",
+                   help="the operator's reset, once: the first time the controller is in FAULT it sends FAULT_RESET to "
+                   "the nodes, then asks the FSM's reset as soon as its preconditions hold (nodes healthy for "
+                   "controller.safety.reset_healthy_ticks, both sticks loaded); a later FAULT stays latched, and it never "
+                   "walks on its own (add --walk or --cycles)")
     p.add_argument("--fixed-step", type=positive_float, metavar="M", help="every step this long: no compensation (the baseline)")
     p.add_argument("--learn", action="store_true", help="learn the compensation online with PI² (saved to --patient's file)")
     p.add_argument("--patient", metavar="NAME", help="walk with (and, learning, update) this patient's learned parameters")
@@ -59,11 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from protocol.bus import open_bus
     from protocol.clock import MonotonicClock
 
-    cfg = load_cli_config(args)
-    if cfg.controller is None:
-        from config import ConfigError
-
-        raise ConfigError("the controller needs the controller section", key="controller")
+    cfg = load_cli_config(args, needs=("controller",))
     from controller.factory import step_policy
     from protocol.enums import GaitState
 
@@ -94,6 +95,11 @@ def run(args: argparse.Namespace) -> int:
             next_status = clock.now_ns()
             result = None
             stopping_since = None  # the tick at which a stop was asked
+            # --reset: the operator's one reset of the first FAULT. FAULT_RESET unlatches the nodes; the FSM
+            # leaves FAULT only on a reset once they have been healthy for reset_healthy_ticks (I4), so the
+            # FSM's reset is asked again when that holds (both sends carry FAULT_RESET to the nodes).
+            reset = "armed" if args.reset else "off"  # armed -> nodes (FAULT_RESET sent) -> done
+            reset_ticks: list[int] = []  # the ticks in which the reset was asked
             while args.ticks is None or loop.report.ticks < args.ticks:
                 state = result.state if result is not None else GaitState.INIT
                 if stopping_since is None:
@@ -105,9 +111,22 @@ def run(args: argparse.Namespace) -> int:
                         stopping_since = loop.report.ticks
                 elif state not in walking or loop.report.ticks - stopping_since > 500:
                     break
-                if args.cycles is not None and state in (GaitState.FAULT, GaitState.HOLD):
+                asked = False
+                if reset == "armed" and state == GaitState.FAULT:
+                    core.request_reset()
+                    reset, asked = "nodes", True
+                elif reset == "nodes":
+                    if state != GaitState.FAULT:
+                        reset = "done"
+                    elif (core.fsm.healthy_ticks >= core.fsm.reset_healthy_ticks and result.estimate is not None
+                          and all(result.estimate.sticks_loaded)):
+                        core.request_reset()
+                        asked = True
+                if args.cycles is not None and state in (GaitState.FAULT, GaitState.HOLD) and reset not in ("armed", "nodes"):
                     break  # a walk of N cycles ends at a fault (on the robot the loop holds and waits for a reset)
                 result = loop.step()
+                if asked:
+                    reset_ticks.append(result.tick)
                 notifier.ping(clock.now_ns())  # from the loop itself: a hung loop stops the pings
                 if not args.quiet and clock.now_ns() >= next_status:
                     print(_status_line(loop, result), file=sys.stderr, flush=True)
@@ -139,6 +158,7 @@ def run(args: argparse.Namespace) -> int:
         "steps": [step.as_dict() for step in core.steps],
         "patient_file": {"path": str(saver.path), "writes": saver.writes, "errors": saver.errors} if saver else None,
         "stopped_by": stop.name,
+        "resets": reset_ticks,
     }
     if args.json:
         print_json(summary)

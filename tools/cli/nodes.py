@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from protocol.bus import open_bus
     from protocol.clock import MonotonicClock
 
-    cfg = load_cli_config(args)
+    cfg = load_cli_config(args, needs=("sim", "nodes"))
     if args.mode:
         cfg = with_overrides(cfg, {"sim.mode": args.mode})
     with StopSignals() as stop:

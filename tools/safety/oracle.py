@@ -146,8 +146,8 @@ class Oracle:
                 self.stops.append(StopRecord(k, t.target, t.cause))
             if t.source == GaitState.FAULT and t.cause != "operator reset":
                 self._fail(k, f"I4 FAULT left without an operator reset ({t.cause})")
-            if t.source == GaitState.FAULT and core.fsm._healthy_ticks < core.fsm.reset_healthy_ticks:
-                self._fail(k, f"I4 FAULT left after {core.fsm._healthy_ticks} healthy ticks")
+            if t.source == GaitState.FAULT and core.fsm.healthy_ticks < core.fsm.reset_healthy_ticks:
+                self._fail(k, f"I4 FAULT left after {core.fsm.healthy_ticks} healthy ticks")
             if t.target in SWINGS:
                 stale = [n for n, s in core.nodes.items() if s.status_tick != k]
                 stale += [n for n in SENSOR_MESSAGES if core.latest.get(n, (-1,))[0] != k]
