@@ -117,9 +117,8 @@ class ControllerCore:
         self.latest: dict[str, tuple[int, Any]] = {}  # sensor message -> (tick it was sent for, values)
         self.syncs = 0  # SYNCs of finished ticks: the index of this tick's SYNC
         self._phase: dict[int, int] = {}  # per-SYNC frame ID -> (SYNC index - counter) mod 16 of an on-time frame
-        self._ages_now: dict[int, int] = {}  # per-SYNC frame ID -> its age, of the frames of this tick
+        self._late_now: dict[int, int] = {}  # per-SYNC frame ID -> its age, of this tick's late frames
         self._shift = (0, 0)  # (a uniform lateness of every node's frames, for how many ticks in a row)
-        self._late_now = False  # a late frame came this tick
         self.started = False
         self.pending_faults: list[str] = []
         self.reset_requested = False
@@ -157,10 +156,9 @@ class ControllerCore:
         base = self._phase.get(frame_id)
         if base is None or (age := (lag - base) % 16) > MAX_AGE:
             self._phase[frame_id] = lag
-            age = 0
-        self._ages_now[frame_id] = age
+            return 0
         if age:
-            self._late_now = True
+            self._late_now[frame_id] = age
         return age
 
     def _missed_sync(self, tick: int) -> None:
@@ -169,14 +167,15 @@ class ControllerCore:
         late by the same ``a`` ticks, as in the tick before. One node's frames coming late do not
         (F4); a uniform delay of every node is indistinguishable from it without a SYNC echo in the
         frames (docs/SAFETY.md). The frames are then this tick's: their phase moves by ``a``."""
-        now, self._ages_now = self._ages_now, {}
-        if not self._late_now and self._shift[0] == 0:
+        late = self._late_now
+        if not late:
+            self._shift = (0, 0)
             return  # every frame of this tick on time (the common case)
-        self._late_now = False
+        self._late_now = {}
         expected = [fid for name, node in self.nodes.items() if node.nmt == NmtState.OPERATIONAL for fid in self._per_sync[name]]
-        ages = {now.get(fid) for fid in expected}
+        ages = {late.get(fid) for fid in expected}  # None: on time or missing
         shift = ages.pop() if len(ages) == 1 and expected else None
-        if not shift:  # None (a frame missing, or different ages) or 0 (on time)
+        if shift is None:
             self._shift = (0, 0)
             return
         ticks = self._shift[1] + 1 if self._shift[0] == shift else 1
