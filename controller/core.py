@@ -111,8 +111,9 @@ class ControllerCore:
         self.lost_ticks = safety.lost_ticks
         self.hold_torque_nm = safety.hold_torque_nm
         self.nodes = {n: NodeState() for n in self.node_names}
-        self._per_sync = {n: [m.frame_id for m in catalog.sent_by(n) if m.is_cyclic and m.family != "HEARTBEAT"]
-                          for n in self.node_names}
+        # what each node sends per SYNC (the cyclic frames but the heartbeat); the loop waits for them too
+        self.per_sync = {n: tuple(m.frame_id for m in catalog.sent_by(n) if m.is_cyclic and m.family != "HEARTBEAT")
+                         for n in self.node_names}
         self._sensor_sender = {name: catalog.by_name(name).sender for name in SENSOR_MESSAGES}
         self.latest: dict[str, tuple[int, Any]] = {}  # sensor message -> (tick it was sent for, values)
         self.syncs = 0  # SYNCs of finished ticks: the index of this tick's SYNC
@@ -172,7 +173,7 @@ class ControllerCore:
             self._shift = (0, 0)
             return  # every frame of this tick on time (the common case)
         self._late_now = {}
-        expected = [fid for name, node in self.nodes.items() if node.nmt == NmtState.OPERATIONAL for fid in self._per_sync[name]]
+        expected = [fid for name, node in self.nodes.items() if node.nmt == NmtState.OPERATIONAL for fid in self.per_sync[name]]
         ages = {late.get(fid) for fid in expected}  # None: on time or missing
         shift = ages.pop() if len(ages) == 1 and expected else None
         if shift is None:
@@ -208,7 +209,7 @@ class ControllerCore:
             node = self.nodes[sender]
             state = NmtState(v.nmt_state)
             if state != NmtState.OPERATIONAL:
-                for m in self._per_sync[sender]:  # a rebooted node's counters start again
+                for m in self.per_sync[sender]:  # a rebooted node's counters start again
                     self._phase.pop(m, None)
             if state == NmtState.BOOT_UP:
                 if node.was_operational:

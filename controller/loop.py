@@ -62,11 +62,6 @@ class LockstepLoop:
         self._idle_ns = 0  # time of the tick spent waiting for (or running) the nodes
         catalog = self.codec.catalog
         self._status_ids = {catalog.message("JOINT_STATUS", n).frame_id: n for n in core.node_names}
-        # what each node sends per SYNC (as the nodes do: the cyclic frames but the heartbeat)
-        self._per_sync_ids = {
-            n: frozenset(m.frame_id for m in catalog.sent_by(n) if m.is_cyclic and m.family != "HEARTBEAT")
-            for n in core.node_names
-        }
 
     def _send(self, name: str, values: tuple) -> None:
         """Send one frame; a failed send is retried once within the tick (a full transmit queue
@@ -90,7 +85,7 @@ class LockstepLoop:
         nothing for us: the peer's frames come only from what we sent, so the frames read, and
         their order, are those of pumping before every read (with about two pumps a tick, not one a frame)."""
         got: set[str] = set()
-        pending = set().union(*(self._per_sync_ids[n] for n in expected)) if self.pump is None else set()
+        pending = set().union(*(self.core.per_sync[n] for n in expected)) if self.pump is None else set()
         read = 0
         now_ns, recv, pump = self.clock.now_ns, self.bus.recv, self.pump  # looked up once: the loop runs per frame
         receive, core_receive, status_ids = self.rx.receive, self.core.receive, self._status_ids

@@ -31,7 +31,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _progress(report, target_min: float, clock, t0: int) -> None:
-    done = report.ticks / 3000
+    from tools.safety.soak import TICKS_PER_MIN
+
+    done = report.ticks / TICKS_PER_MIN
     elapsed = (clock.now_ns() - t0) / 1e9
     print(f"soak: {done:5.1f}/{target_min:g} simulated min, {report.episodes} episodes, {sum(report.faults.values())} faults, "
           f"{sum(report.stops.values())} stops, {report.falls} falls, {len(report.violations)} violations, {elapsed:.0f} s",
