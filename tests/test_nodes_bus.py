@@ -7,6 +7,8 @@ back on the bus, decoded by an independent receiver.
 
 from __future__ import annotations
 
+import dataclasses
+
 import can
 import numpy as np
 import pytest
@@ -165,6 +167,24 @@ def test_standing_sensors_are_plausible(ctl):
     accel = values(got, "TRUNK_IMU_ACCEL")[0]
     assert np.linalg.norm([accel.specific_force_x_m_s2, accel.specific_force_y_m_s2, accel.specific_force_z_m_s2]) == pytest.approx(9.81, abs=0.3)
     assert values(got, "JOINT_STATUS_LK")[0].drive_state == DriveState.HOLD
+
+
+def test_a_sensor_beyond_its_full_scale_saturates_and_a_non_finite_one_is_not_sent(ctl):
+    ctl.start()
+    ctl.sync()
+    physics = ctl.host.patient.tick
+
+    def overloaded(reading):  # the left stick pressed beyond the sensor's 2000 N, the right one's value lost
+        return dataclasses.replace(physics(reading), stick_force_n=np.array([5000.0, np.nan]))
+
+    ctl.host.patient.tick = overloaded
+    got = ctl.sync()
+    assert [v.force_N for v in values(got, "STICK_LEFT")] == [2000.0]
+    assert "STICK_RIGHT" not in got  # the controller sees it missing
+    saturated = ctl.host.stats.saturated
+    assert saturated["STICK_LEFT.force_N"] == 1
+    assert saturated["STICK_RIGHT: STICK_RIGHT.force_N: nan is outside [-100, 2000] N"] == 1
+    assert values(got, "PLANTAR_LEFT") and values(got, "JOINT_STATUS_LH")  # the other frames as ever
 
 
 def test_a_commanded_joint_motion_shows_up_in_the_encoder(ctl):
