@@ -253,6 +253,57 @@ def test_uml_exit_status_and_separate_streaming_output():
     assert t_end - t_first > 1.0, "stdout was not streamed"
 
 
+# Three threads in each of two processes keep their own values in AVX-512 registers (zmm31, the
+# upper half of zmm7, opmask k3) and check them while they are preempted by each other in the guest:
+# UML saves and restores them through ptrace, on an AMX host through tools/uml-xstate.c.
+AVX512_PROGRAM = r"""
+#include <pthread.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <string.h>
+#include <time.h>
+static volatile int bad;
+static void *run(void *arg) {
+    uint64_t tag = (uintptr_t)arg, in[8], out[8], k;
+    for (int i = 0; i < 8; i++) in[i] = tag * 0x0101010101010101ull + i;
+    __asm__ volatile("vmovdqu64 %0, %%zmm31\n\tvmovdqu64 %0, %%zmm7\n\tkmovq %1, %%k3"
+                     :: "m"(in), "r"(tag * 0x1111ull) : "xmm31", "xmm7", "k3");
+    struct timespec t0, t;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    do {
+        for (volatile int i = 0; i < 100000; i++) ;
+        __asm__ volatile("vmovdqu64 %%zmm31, %0" : "=m"(out));
+        if (memcmp(in, out, sizeof in)) { bad = 1; puts("zmm31 lost"); break; }
+        __asm__ volatile("vmovdqu64 %%zmm7, %0" : "=m"(out));
+        if (memcmp(in, out, sizeof in)) { bad = 1; puts("zmm7 lost"); break; }
+        __asm__ volatile("kmovq %%k3, %0" : "=r"(k));
+        if (k != tag * 0x1111ull) { bad = 1; puts("k3 lost"); break; }
+        clock_gettime(CLOCK_MONOTONIC, &t);
+    } while ((t.tv_sec - t0.tv_sec) * 1000000000L + (t.tv_nsec - t0.tv_nsec) < 1500000000L);
+    return 0;
+}
+int main(void) {
+    pthread_t th[3];
+    for (uintptr_t i = 0; i < 3; i++) pthread_create(&th[i], 0, run, (void *)(i + 1));
+    for (int i = 0; i < 3; i++) pthread_join(th[i], 0);
+    puts(bad ? "FAIL" : "PASS");
+    return bad;
+}
+"""
+
+
+@needs_uml
+@pytest.mark.skipif("avx512f" not in _cpu_flags() or not (shutil.which("cc") or shutil.which("gcc")),
+                    reason="needs an AVX-512 host and a C compiler")
+def test_uml_guest_threads_keep_their_avx512_registers_across_preemption(tmp_path):
+    src, exe = tmp_path / "avx512.c", tmp_path / "avx512"
+    src.write_text(AVX512_PROGRAM)
+    subprocess.run([shutil.which("cc") or "gcc", "-O1", "-mavx512f", "-pthread", "-o", str(exe), str(src)], check=True)
+    r = run(["--", "sh", "-c", f"{exe} & {exe}; wait $!"], env=env_with(VCAN_RUN_FORCE="uml"), cwd=tmp_path)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert r.stdout.split() == [b"PASS", b"PASS"]
+
+
 def test_auto_mode_gives_vcan0_or_says_why(tmp_path):
     """Without VCAN_RUN_FORCE: whatever mode is chosen, it is consistent.
     (Boots UML on a host without vcan0 but with user-mode-linux.)"""
