@@ -26,3 +26,30 @@ def test_a_three_minute_soak_breaks_no_invariant_and_holds_its_memory():
     assert report["rss_mib"]["growth"] <= report["rss_mib"]["limit"] == 0.05, report["rss_mib"]
     assert report["objects"]["growth"] <= report["objects"]["limit"], report["objects"]
     assert report["passed"] and run.returncode == 0
+
+
+def test_a_closed_rig_is_freed_at_its_last_reference_not_by_the_garbage_collector():
+    """Each soak episode's rig (world, loop with its tick-timing rings, codecs) goes when the
+    episode ends: a rig kept in a reference cycle waited for a full collection, episodes piled up
+    and the heap fragmented (+7.8 % resident in 30 minutes)."""
+    import gc
+    import weakref
+
+    from config import default_config_path, load_config
+    from tools.safety.rig import FaultRig
+
+    cfg = load_config(default_config_path())
+    enabled = gc.isenabled()
+    gc.collect()
+    gc.disable()
+    try:
+        with FaultRig(cfg, seed=1, tick_timeout_s=0.005, keep_results=False) as rig:
+            rig.core.request_walk()
+            rig.run(20)
+            assert rig.loop.codec is rig.host.codec is rig.oracle.codec  # one stateless codec, not one per part
+            refs = [weakref.ref(o) for o in (rig, rig.loop, rig.loop.stats, rig.host, rig.host.world, rig.core, rig.oracle)]
+        del rig
+        assert [r() for r in refs] == [None] * len(refs)
+    finally:
+        if enabled:
+            gc.enable()

@@ -11,7 +11,9 @@ on the bus, which :class:`~tools.safety.oracle.Oracle` checks after every tick.
 from __future__ import annotations
 
 import itertools
+import weakref
 from collections.abc import Callable, Iterable
+from functools import cache
 
 import can
 import numpy as np
@@ -23,11 +25,37 @@ from controller.core import ControllerCore, TickResult
 from controller.loop import LockstepLoop
 from nodes.host import NodesHost
 from protocol.bus import virtual_bus
+from protocol.codec import Codec
 from protocol.enums import GaitState
 from protocol.faultbus import BusFault, FaultBus
 from tools.safety.oracle import Oracle
 
 _channels = itertools.count()
+
+
+@cache
+def shared_codec() -> Codec:
+    """One codec for every rig of the process (a codec is stateless). Each :class:`Codec` compiles
+    a decoder and an encoder per message into functions whose globals hold them: cyclic garbage
+    that only a full collection frees, made by every rig's host, loop and oracle if each built its
+    own (about 1,000 objects a rig)."""
+    return Codec()
+
+
+def _weak_pump(rig: FaultRig) -> Callable[[], None]:
+    """The loop's pump, holding the rig weakly: a bound ``rig._pump`` in ``rig.loop`` would make
+    rig and loop a reference cycle, so a finished rig (its world's Python side, the loop's two 8 MiB
+    tick-timing rings, its codecs) would wait for the garbage collector's next full collection
+    instead of going at the last reference. Episodes of a soak then pile up, and the heap that new
+    episodes allocate around them fragments (measured: +0.15 MiB resident an episode, faulted or not)."""
+    ref = weakref.ref(rig)
+
+    def pump() -> None:
+        r = ref()
+        if r is not None:
+            r._pump()
+
+    return pump
 
 
 class FaultRig:
@@ -42,17 +70,17 @@ class FaultRig:
         self.node_bus = virtual_bus(channel)
         self.bus = FaultBus(virtual_bus(channel), bus_faults, rng=np.random.default_rng(seed))
         try:
-            self.host = NodesHost(cfg, self.node_bus, lockstep=True, seed=seed)
+            self.host = NodesHost(cfg, self.node_bus, lockstep=True, seed=seed, codec=shared_codec())
         except Exception:
             self._shutdown_buses()
             raise
         self.host.boot()
         self.core = ControllerCore(cfg.controller)
         self.loop = LockstepLoop(
-            self.core, self.bus, pump=self._pump, tick_timeout_s=tick_timeout_s,
+            self.core, self.bus, codec=shared_codec(), pump=_weak_pump(self), tick_timeout_s=tick_timeout_s,
             max_delta_counter=cfg.protocol.max_delta_counter,
         )
-        self.oracle = Oracle(self.core)
+        self.oracle = Oracle(self.core, codec=shared_codec())
         self.results: list[TickResult] = []
         self.keep_results = keep_results
         self.last: TickResult | None = None

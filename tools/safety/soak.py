@@ -30,8 +30,7 @@ from typing import Any
 import numpy as np
 
 from config import Config
-from protocol.catalog import TICK_MS
-from protocol.codec import Codec
+from protocol.catalog import TICK_MS, default_catalog
 from protocol.enums import GaitState
 from protocol.faultbus import BusFault
 from tools.safety.rig import FaultRig
@@ -135,7 +134,7 @@ class _Faults:
 
     def __init__(self, rng: np.random.Generator, per_min: float) -> None:
         self.rng, self.p = rng, per_min / TICKS_PER_MIN
-        catalog = Codec().catalog
+        catalog = default_catalog()
         self.nodes = catalog.joint_nodes
         self.node_frames = {n: frozenset(m.frame_id for m in catalog.sent_by(n)) for n in self.nodes}
         self.controller_frames = frozenset(m.frame_id for m in catalog.sent_by("CONTROLLER"))
