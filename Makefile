@@ -9,7 +9,7 @@ AIDER  := $(VENV)/bin/aider-exo
 STAMP  := $(VENV)/.installed
 SYSTEM_TOOLS := linux insmod candump canplayer cangen
 
-.PHONY: demo test test-pace venv system-deps docs clean
+.PHONY: demo test venv system-deps docs clean
 
 venv: $(STAMP)
 
@@ -38,12 +38,7 @@ demo: venv system-deps
 
 test: venv system-deps
 	$(PY) -m pytest -m "not vcan"
-	tools/vcan-run -- $(PY) -m pytest -m "vcan and not vcan_pace" -p no:cacheprovider
-
-# The vcan tests that need the sandbox's one guest CPU to keep real-time pace (real-time walks,
-# killed processes, a cangen flood): they pass alone and fail when the guest stalls (docs/SAFETY.md).
-test-pace: venv system-deps
-	tools/vcan-run -- $(PY) -m pytest -m vcan_pace -p no:cacheprovider
+	tools/vcan-run -- $(PY) -m pytest -m vcan -p no:cacheprovider
 
 # Regenerate the protocol documentation from the DBC (a test fails when it is stale).
 docs: venv

@@ -153,7 +153,6 @@ def test_controller_walks_ten_gait_cycles_over_vcan0_with_the_nodes_as_a_second_
 GUEST_STALL = ("NODE_LOST", "SENSOR_LOST", "OVERRUN")
 
 
-@pytest.mark.vcan_pace
 def test_controller_walks_five_gait_cycles_over_vcan0_in_real_time(vcan0, tmp_path):
     for attempt in (1, 2):
         log = tmp_path / f"candump-{attempt}.log"

@@ -276,7 +276,6 @@ def _mid_swing(vcan0: str, tmp: Path, name: str, nodes_extra: tuple[str, ...] = 
 # -- F1: the nodes process killed ---------------------------------------------------------------------
 
 
-@pytest.mark.vcan_pace
 def test_killed_nodes_process_faults_the_controller_within_4_ticks_and_it_holds(vcan0, tmp_path):
     with _mid_swing(vcan0, tmp_path, "candump") as (nodes, ctl, tail, log):
         nodes.kill()  # SIGKILL
@@ -398,7 +397,6 @@ def crash():
     return run
 
 
-@pytest.mark.vcan_pace
 def test_killed_controller_nodes_quick_stop_and_hold(vcan0, tmp_path_factory, crash):
     """F20: every node sends EMCY 0x8250 within 4 of its own ticks after the controller's last
     frame, quick-stops and stays; the HHEA stays upright."""
@@ -475,7 +473,6 @@ def _commands(decoded: list[Decoded]) -> Counter:
     return Counter(JointMode(d.values.mode).name for d in decoded if d.message.family == "JOINT_COMMAND")
 
 
-@pytest.mark.vcan_pace
 def test_restarted_controller_starts_and_stays_in_fault_without_an_operator_reset(vcan0, tmp_path_factory, crash):
     """F22/I4: against the latched nodes, 150 ticks in FAULT, no TRACK command, no reset sent."""
     r = crash(vcan0, tmp_path_factory.mktemp("crash"))
@@ -497,7 +494,6 @@ def test_restarted_controller_starts_and_stays_in_fault_without_an_operator_rese
     assert {DriveState(d.values.drive_state) for d in decoded if d.message.family == "JOINT_STATUS"} == {DriveState.FAULT}
 
 
-@pytest.mark.vcan_pace
 def test_restarted_controller_leaves_fault_only_on_the_operators_reset_and_does_not_walk(vcan0, tmp_path_factory, crash):
     """F22/I4 with ``--reset``: FAULT_RESET clears the nodes, the FSM stands after 25 healthy ticks
     on a second reset request, and without --walk it stands to the end."""
@@ -615,7 +611,6 @@ def _check_walked(summary: dict, final: dict) -> None:
     assert {n["error"] for n in final["nodes"].values()} == {"NONE"}
 
 
-@pytest.mark.vcan_pace
 def test_cangen_flood_of_foreign_frames_during_a_lockstep_walk_is_counted_and_ignored(vcan0, tmp_path):
     """Frames that cannot be ours (unknown IDs; our IDs at a length none of ours has; extended;
     remote): the walk of 3 cycles as without them, and every one counted by reason."""

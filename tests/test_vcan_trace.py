@@ -97,7 +97,6 @@ def _assert_same_timing(a, b, p90_s=0.005, max_s=0.05):
     assert np.percentile(error, 90) < p90_s and error.max() < max_s, np.percentile(error, [50, 90, 100])
 
 
-@pytest.mark.vcan_pace  # its replay-timing check (p90 10 ms) failed once in CI with a 149 ms guest stall
 def test_record_canplayer_candump_replay_and_cantools_agree_over_vcan0(vcan0, tmp_path, capsys):
     codec = Codec()
     trace = tmp_path / "trace.log"
