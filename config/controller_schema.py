@@ -168,6 +168,8 @@ class SafetyConfig:
     stuck_motion_rad: float = field_spec(doc="... while its setpoint moved this much: ENCODER_STUCK, FAULT (F14).", unit="rad", min=0.005, max=0.5)
     fall_tilt_rad: float = field_spec(doc="Trunk roll or pitch beyond this ...", unit="rad", min=0.1, max=1.2)
     fall_ticks: int = field_spec(doc="... for this many ticks: a fall, FAULT (F18).", min=1, max=5)
+    stick_unloaded_n: float = field_spec(doc="A stick carrying less than this ...", unit="N", min=0.0, max=50.0)
+    stick_unloaded_ticks: int = field_spec(doc="... for this many ticks in a row of a swing: HOLD once the swing has landed (F19).", min=2, max=50)
     hold_torque_nm: float = field_spec(doc="Torque limit of every HOLD command.", unit="N.m", min=1.0, max=200.0)
     reset_healthy_ticks: int = field_spec(doc="An operator reset leaves FAULT only after the nodes were healthy this long (I4: 25).", min=5, max=1000)
 

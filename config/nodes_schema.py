@@ -10,7 +10,7 @@ from .loader import fail, field_spec
 NODE_NAMES = ("LEFT_HIP", "LEFT_KNEE", "RIGHT_HIP", "RIGHT_KNEE")
 
 #: Faults that act on one of the node's messages (and need ``message``).
-MESSAGE_FAULTS = ("drop", "delay", "duplicate", "corrupt", "out_of_range")
+MESSAGE_FAULTS = ("drop", "delay", "duplicate", "corrupt", "out_of_range", "sensor_value")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -20,7 +20,8 @@ class FaultConfig:
     Kinds: ``drop``, ``delay`` (by ``delay_ticks``), ``duplicate`` or ``corrupt`` (one bit flipped,
     so its CRC fails) a message the node sends, with ``probability`` per frame; ``out_of_range``: a
     sensor signal of the message carries ``value`` (raw grid, beyond its DBC range) under a good
-    CRC; ``freeze``: the node's application stops, its last frames are re-sent unchanged (same
+    CRC; ``sensor_value``: a sensor signal of the message reads ``value`` (within its range: a
+    sensor that has failed, or a stick that slipped, reads 0 N); ``freeze``: the node's application stops, its last frames are re-sent unchanged (same
     counters) and commands are no longer applied; ``stuck_encoder``: the joint's reported position
     stays at its value when the fault starts; ``reboot``: the node restarts once at ``start_tick``
     (boot-up, pre-operational, counters from 0); ``drive_fault``: the drive reports an over-current
@@ -28,7 +29,8 @@ class FaultConfig:
     """
 
     kind: Literal[
-        "drop", "delay", "duplicate", "corrupt", "out_of_range", "freeze", "stuck_encoder", "reboot", "drive_fault"
+        "drop", "delay", "duplicate", "corrupt", "out_of_range", "sensor_value", "freeze", "stuck_encoder", "reboot",
+        "drive_fault",
     ] = field_spec(doc="What goes wrong (see the class doc).")
     node: Literal["LEFT_HIP", "LEFT_KNEE", "RIGHT_HIP", "RIGHT_KNEE"] = field_spec(doc="The node it happens to.")
     start_tick: int = field_spec(doc="First tick (SYNC tick number) with the fault.", min=0, max=2**28 - 1)
@@ -36,12 +38,13 @@ class FaultConfig:
         doc="First tick without it (absent: until the process ends).", min=1, max=2**28, default=None
     )
     message: str | None = field_spec(
-        doc="Message the fault acts on (drop, delay, duplicate, corrupt, out_of_range): one the node sends.",
+        doc="Message the fault acts on (drop, delay, duplicate, corrupt, out_of_range, sensor_value): one the node sends.",
         default=None,
     )
-    signal: str | None = field_spec(doc="out_of_range: the signal of ``message`` that goes out of range.", default=None)
+    signal: str | None = field_spec(doc="out_of_range, sensor_value: the signal of ``message`` that the fault sets.", default=None)
     value: float | None = field_spec(
-        doc="out_of_range: the physical value sent (beyond the signal's range, within its bits).", default=None
+        doc="out_of_range: the physical value sent (beyond the signal's range, within its bits); sensor_value: within its range.",
+        default=None,
     )
     probability: float = field_spec(doc="Chance per frame for drop, duplicate and corrupt.", min=0.0, max=1.0, default=1.0)
     delay_ticks: int = field_spec(doc="delay: how many ticks a frame is held back.", min=1, max=50, default=1)
@@ -53,8 +56,8 @@ class FaultConfig:
             fail("message", f"a {self.kind} fault needs the message it acts on")
         if self.kind not in MESSAGE_FAULTS and self.message:
             fail("message", f"a {self.kind} fault acts on the whole node, not on a message")
-        if self.kind == "out_of_range" and (self.signal is None or self.value is None):
-            fail("signal" if self.signal is None else "value", "an out_of_range fault needs signal and value")
+        if self.kind in ("out_of_range", "sensor_value") and (self.signal is None or self.value is None):
+            fail("signal" if self.signal is None else "value", f"an {self.kind} fault needs signal and value")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -137,6 +137,8 @@ class ControllerCore:
         self._failed_sends: deque[int] = deque(maxlen=safety.send_failure_ticks)  # ticks with a failed send
         self._overruns: deque[int] = deque()  # ticks that followed an overrun
         self._overrun_stop: str | None = None  # a protective stop asked by the loop's timing
+        self._unloaded = [0, 0]  # per stick: ticks in a row of this swing below stick_unloaded_n
+        self._slipped: str | None = None  # F19: a stick unloaded in this swing, a HOLD once it has landed
         self._follow = _Following()
         self.walk_requested = False
         self.stop_requested = False
@@ -278,6 +280,25 @@ class ControllerCore:
             else:
                 f.reading[j], f.same[j], f.lo[j], f.hi[j] = qj, 0, cj, cj
 
+    def _check_sticks(self, before: GaitState, m: Measurements | None, fresh: bool) -> str | None:
+        """F19: a stick that carries less than ``stick_unloaded_n`` for ``stick_unloaded_ticks``
+        ticks in a row of a swing has slipped or been lifted while the patient needs it. The swing
+        goes on to its landing (stopping the legs mid-swing would drop the patient on one leg);
+        the tick after the landing is a HOLD, whose cause this returns. The next step is inhibited
+        anyway: no step starts without both sticks loaded (I2)."""
+        if before in SWINGS:
+            if m is not None and fresh:
+                s = self.safety
+                for i, force in enumerate(m.stick_force_n.tolist()):
+                    self._unloaded[i] = self._unloaded[i] + 1 if force < s.stick_unloaded_n else 0
+                    if self._unloaded[i] == s.stick_unloaded_ticks and self._slipped is None:
+                        self._slipped = (f"STICK_UNLOADED({('left', 'right')[i]} stick below {s.stick_unloaded_n:g} N "
+                                         f"for {s.stick_unloaded_ticks} ticks in the swing)")
+            return None
+        self._unloaded = [0, 0]
+        slipped, self._slipped = self._slipped, None
+        return slipped if before in (GaitState.DOUBLE_SUPPORT, GaitState.STOP) else None  # landed (a HOLD or FAULT has stopped it anyway)
+
     def _supervise_bus(self, tick: int) -> None:
         """The integrity window and the failed sends (see the module doc)."""
         s = self.safety
@@ -359,6 +380,7 @@ class ControllerCore:
         estimate = self.estimator.update(measurements) if measurements is not None else None
         self._check_fall(measurements)
         self._check_following(measurements, fresh)
+        slipped = self._check_sticks(self.fsm.state, measurements, fresh)
         healthy = operational and max(ages) <= 2 and not self.pending_faults
         quiet_bus = tick - self._error_frame_tick >= self.safety.integrity_window_ticks  # F11: no new step
         # The gait of the state the FSM is in: whether the step is ready, whether the swing is done.
@@ -386,7 +408,7 @@ class ControllerCore:
             swing_done=done,
             fault=self.pending_faults[0] if self.pending_faults else None,
             other_faults=tuple(self.pending_faults[1:]),
-            protective_stop=self._overrun_stop,
+            protective_stop=self._overrun_stop or slipped,
             reset=self.reset_requested,
             start=self.walk_requested,
             stop=self.stop_requested,

@@ -3,7 +3,7 @@
 :class:`FaultInjector` holds the configured faults and a seeded generator. The host asks it, per
 tick, which node-level faults start (reboot, drive fault), whether a node is frozen or its encoder
 stuck, and passes every outgoing frame through :meth:`FaultInjector.outgoing`, which drops,
-delays, duplicates, corrupts or pushes a signal out of range as configured. Every injection is
+delays, duplicates, corrupts, pushes a signal out of range or sets it as configured. Every injection is
 counted by kind, so a test or the status line can show what was done.
 """
 
@@ -30,7 +30,7 @@ class _Fault:
     name: str
     cfg: FaultConfig
     spec: MessageSpec | None
-    raw: int | None  # out_of_range: the raw value sent
+    raw: int | None  # out_of_range, sensor_value: the raw value sent
 
     def active(self, tick: int) -> bool:
         end = self.cfg.end_tick
@@ -58,14 +58,20 @@ class FaultInjector:
                 raise FaultConfigError(f"nodes.faults.{name}.message: unknown message {cfg.message!r}") from None
             if spec.sender != cfg.node:
                 raise FaultConfigError(f"nodes.faults.{name}.message: {cfg.message} is sent by {spec.sender}, not {cfg.node}")
-        if cfg.kind == "out_of_range":
+        if cfg.kind in ("out_of_range", "sensor_value"):
             assert spec is not None and cfg.signal is not None and cfg.value is not None
             try:
                 sig = spec.signal(cfg.signal)
             except KeyError:
                 raise FaultConfigError(f"nodes.faults.{name}.signal: {cfg.message} has no signal {cfg.signal!r}") from None
             raw = round((cfg.value - sig.offset) / sig.scale)
-            if sig.raw_min <= raw <= sig.raw_max or not sig.raw_min_representable <= raw <= sig.raw_max_representable:
+            in_range = sig.raw_min <= raw <= sig.raw_max
+            if cfg.kind == "sensor_value" and not in_range:
+                raise FaultConfigError(
+                    f"nodes.faults.{name}.value: {cfg.value} must lie within {cfg.message}.{cfg.signal}'s range "
+                    f"[{sig.minimum}, {sig.maximum}] (beyond it: out_of_range)"
+                )
+            if cfg.kind == "out_of_range" and (in_range or not sig.raw_min_representable <= raw <= sig.raw_max_representable):
                 raise FaultConfigError(
                     f"nodes.faults.{name}.value: {cfg.value} must lie outside {cfg.message}.{cfg.signal}'s range "
                     f"[{sig.minimum}, {sig.maximum}] and within its {sig.length} bits"
@@ -100,7 +106,7 @@ class FaultInjector:
             if f.spec is not spec or not f.active(tick):
                 continue
             kind = f.cfg.kind
-            if kind == "out_of_range":
+            if kind in ("out_of_range", "sensor_value"):
                 out = [with_raw_value(spec, p, f.cfg.signal, f.raw) for p in out]  # type: ignore[arg-type]
                 self.counts[kind] += 1
                 continue

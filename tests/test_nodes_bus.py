@@ -334,6 +334,20 @@ def test_fault_sensor_out_of_range(request):
     assert c.rx.stats.rejected[RejectReason.OUT_OF_RANGE] == 1 and c.rx.stats.rejected[RejectReason.BAD_CRC] == 0
 
 
+def test_fault_sensor_value_is_sent_under_a_good_crc(request):
+    c, ticks = run_with(request, {"d": {"kind": "sensor_value", "node": "LEFT_HIP", "message": "STICK_LEFT", "signal": "force_N", "value": 0.0, "start_tick": 5, "end_tick": 8}})
+    forces = [values(got, "STICK_LEFT")[0].force_N for got in ticks]
+    assert forces[5:8] == [0.0, 0.0, 0.0] and forces[4] > 20.0 and forces[8] > 20.0  # the standing patient leans on it
+    assert c.rx.stats.rejected_total == 0
+
+
+def test_fault_sensor_value_beyond_the_range_names_the_key():
+    from nodes.faults import FaultConfigError
+
+    with pytest.raises(FaultConfigError, match=r"nodes.faults.x.value: 5000.0 must lie within STICK_LEFT.force_N's range"):
+        ScriptedController("nodes-badvalue", faults={"x": {"kind": "sensor_value", "node": "LEFT_HIP", "message": "STICK_LEFT", "signal": "force_N", "value": 5000.0, "start_tick": 1}})
+
+
 def test_fault_freeze_resends_stale_frames_and_stops_applying_commands(request):
     c, ticks = run_with(request, {"d": {"kind": "freeze", "node": "LEFT_KNEE", "start_tick": 5, "end_tick": 10}}, ticks=5)
     last = ticks[-1]["JOINT_STATUS_LK"][0][0].data

@@ -348,6 +348,33 @@ def test_F17_a_setpoint_jump_is_clamped_on_the_bus_and_faults():
         expect_stop(rig, t0, FAULT, r"ENVELOPE\(knee_l: setpoint step", detect=1)  # I1 held on the bus (oracle)
 
 
+def test_F19_a_stick_unloaded_in_a_swing_holds_once_the_swing_has_landed():
+    """The left stick's force reads 0 N from early in a swing on (a slipped or lifted crutch): the
+    swing goes on to its landing, and the tick after the landing is a HOLD (no step starts on one
+    stick anyway, I2, checked by the oracle)."""
+    with at("swing") as rig:
+        t0 = rig.tick + 1
+        rig.inject_node("sensor_value", "LEFT_HIP", start_tick=t0, message="STICK_LEFT", signal="force_N", value=0.0)
+        assert rig.run_until(lambda r: r.state not in (GaitState.SWING_LEFT, GaitState.SWING_RIGHT), 200)
+        step = rig.core.steps[-1]
+        assert rig.state == GaitState.DOUBLE_SUPPORT and step.landed, (rig.state, step)
+        assert step.end_tick - t0 > SAFETY.stick_unloaded_ticks  # detected mid-swing, acted on after the landing
+        rig.run(10)
+        stop = expect_stop(rig, t0, HOLD, r"STICK_UNLOADED\(left stick below 2 N for 10 ticks", detect=200, react=0)
+        assert stop.tick == step.end_tick + 1
+
+
+def test_F19_a_stick_unloaded_for_less_than_the_budget_in_a_swing_is_tolerated():
+    """Healthy swings unload a stick for up to 6 ticks (docs/SAFETY.md); one unloaded for
+    ``stick_unloaded_ticks`` - 1 ticks is not a slip."""
+    with at("swing") as rig:
+        t0 = rig.tick + 1
+        rig.inject_node("sensor_value", "LEFT_HIP", start_tick=t0, end_tick=t0 + SAFETY.stick_unloaded_ticks - 1,
+                        message="STICK_LEFT", signal="force_N", value=0.0)
+        assert rig.run_until(lambda r: r.state == GaitState.SWING_LEFT, 600), rig.state  # the next step starts
+        expect_walking_on(rig, t0)
+
+
 def test_F18_a_push_that_topples_the_hhea_is_a_fall():
     """A 600 N backward push on the trunk for 0.3 s in double support: the HHEA falls; the trunk's
     tilt beyond fall_tilt_rad for fall_ticks ticks is a FALL, FAULT, and the roll-out ends."""
