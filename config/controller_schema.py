@@ -170,8 +170,16 @@ class SafetyConfig:
     fall_ticks: int = field_spec(doc="... for this many ticks: a fall, FAULT (F18).", min=1, max=5)
     stick_unloaded_n: float = field_spec(doc="A stick carrying less than this ...", unit="N", min=0.0, max=50.0)
     stick_unloaded_ticks: int = field_spec(doc="... for this many ticks in a row of a swing: HOLD once the swing has landed (F19).", min=2, max=50)
+    supply_warn_v: float = field_spec(doc="The lowest supply voltage the nodes report below this ...", unit="V", min=5.0, max=60.0)
+    supply_warn_ticks: int = field_spec(doc="... for this many ticks: a warning, no change (F29).", min=1, max=500)
+    supply_critical_v: float = field_spec(doc="Below this (under supply_warn_v) ...", unit="V", min=5.0, max=60.0)
+    supply_critical_ticks: int = field_spec(doc="... for this many ticks: no new step, HOLD in double support (a swing lands first) (F29).", min=1, max=100)
     hold_torque_nm: float = field_spec(doc="Torque limit of every HOLD command.", unit="N.m", min=1.0, max=200.0)
     reset_healthy_ticks: int = field_spec(doc="An operator reset leaves FAULT only after the nodes were healthy this long (I4: 25).", min=5, max=1000)
+
+    def validate(self) -> None:
+        if self.supply_critical_v >= self.supply_warn_v:
+            fail("supply_critical_v", f"must be below supply_warn_v {self.supply_warn_v}")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -25,12 +25,14 @@ class FaultConfig:
     counters) and commands are no longer applied; ``stuck_encoder``: the joint's reported position
     stays at its value when the fault starts; ``reboot``: the node restarts once at ``start_tick``
     (boot-up, pre-operational, counters from 0); ``drive_fault``: the drive reports an over-current
-    fault (EMCY, quick stop, latched until the controller's fault reset).
+    fault (EMCY, quick stop, latched until the controller's fault reset); ``supply_ramp``: the supply
+    voltage the node reports falls by ``value`` volts a second from ``start_tick`` (the nominal again
+    from ``end_tick``: a battery swapped).
     """
 
     kind: Literal[
         "drop", "delay", "duplicate", "corrupt", "out_of_range", "sensor_value", "freeze", "stuck_encoder", "reboot",
-        "drive_fault",
+        "drive_fault", "supply_ramp",
     ] = field_spec(doc="What goes wrong (see the class doc).")
     node: Literal["LEFT_HIP", "LEFT_KNEE", "RIGHT_HIP", "RIGHT_KNEE"] = field_spec(doc="The node it happens to.")
     start_tick: int = field_spec(doc="First tick (SYNC tick number) with the fault.", min=0, max=2**28 - 1)
@@ -43,7 +45,7 @@ class FaultConfig:
     )
     signal: str | None = field_spec(doc="out_of_range, sensor_value: the signal of ``message`` that the fault sets.", default=None)
     value: float | None = field_spec(
-        doc="out_of_range: the physical value sent (beyond the signal's range, within its bits); sensor_value: within its range.",
+        doc="out_of_range: the physical value sent (beyond the signal's range, within its bits); sensor_value: within its range; supply_ramp: volts a second.",
         default=None,
     )
     probability: float = field_spec(doc="Chance per frame for drop, duplicate and corrupt.", min=0.0, max=1.0, default=1.0)
@@ -56,6 +58,8 @@ class FaultConfig:
             fail("message", f"a {self.kind} fault needs the message it acts on")
         if self.kind not in MESSAGE_FAULTS and self.message:
             fail("message", f"a {self.kind} fault acts on the whole node, not on a message")
+        if self.kind == "supply_ramp" and (self.value is None or not 0.0 < self.value <= 100.0):
+            fail("value", "a supply_ramp fault needs value: the fall in volts a second, in (0, 100]")
         if self.kind in ("out_of_range", "sensor_value") and (self.signal is None or self.value is None):
             fail("signal" if self.signal is None else "value", f"an {self.kind} fault needs signal and value")
 
@@ -81,6 +85,10 @@ class NodesConfig:
         unit="ms",
         min=120,
         max=1000,
+    )
+    supply_voltage_v: float = field_spec(
+        doc="Supply voltage the boards report in their heartbeats: the battery's DC bus (a 7-cell Li-ion pack, 25.2 V full).",
+        unit="V", min=5.0, max=60.0,
     )
     status_interval_s: float = field_spec(
         doc="Seconds between the one-line status reports of `aider-exo nodes`.", unit="s", min=0.1, max=60.0, default=1.0

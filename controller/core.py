@@ -67,6 +67,7 @@ class NodeState:
     status: Any = None  # the newest JOINT_STATUS values
     status_tick: int = -1  # the tick it arrived in
     operational_since: int = -1  # the tick its heartbeat first said OPERATIONAL (-1: never)
+    supply_v: float | None = None  # the supply voltage of its newest heartbeat
 
     @property
     def was_operational(self) -> bool:
@@ -139,6 +140,7 @@ class ControllerCore:
         self._overrun_stop: str | None = None  # a protective stop asked by the loop's timing
         self._unloaded = [0, 0]  # per stick: ticks in a row of this swing below stick_unloaded_n
         self._slipped: str | None = None  # F19: a stick unloaded in this swing, a HOLD once it has landed
+        self._supply_low = [0, 0]  # F29: ticks in a row with the lowest supply below warn, below critical
         self._follow = _Following()
         self.walk_requested = False
         self.stop_requested = False
@@ -218,7 +220,7 @@ class ControllerCore:
                     self.pending_faults.append(f"NODE_REBOOTED({sender})")
             elif node.was_operational and state != NmtState.OPERATIONAL:
                 self.pending_faults.append(f"NODE_NOT_OPERATIONAL({sender})")
-            node.nmt = state
+            node.nmt, node.supply_v = state, v.supply_voltage_V
             if state == NmtState.OPERATIONAL and not node.was_operational:
                 node.operational_since = tick
         elif family == "EMCY":
@@ -298,6 +300,23 @@ class ControllerCore:
         self._unloaded = [0, 0]
         slipped, self._slipped = self._slipped, None
         return slipped if before in (GaitState.DOUBLE_SUPPORT, GaitState.STOP) else None  # landed (a HOLD or FAULT has stopped it anyway)
+
+    def _check_supply(self, state: GaitState, events: list[str]) -> str | None:
+        """F29: the lowest supply voltage of the nodes' heartbeats below ``supply_warn_v`` for
+        ``supply_warn_ticks`` ticks is a warning (an event; nothing else changes); below
+        ``supply_critical_v`` for ``supply_critical_ticks`` no step starts any more: in double
+        support (a swing lands first, its next tick is in double support) the cause of a HOLD this
+        returns, as often as the operator resets and starts again."""
+        s = self.safety
+        volts = [n.supply_v for n in self.nodes.values() if n.supply_v is not None]
+        low = min(volts) if volts else math.inf
+        warn, critical = self._supply_low
+        self._supply_low = [warn + 1 if low < s.supply_warn_v else 0, critical + 1 if low < s.supply_critical_v else 0]
+        if self._supply_low[0] == s.supply_warn_ticks:
+            events.append(f"SUPPLY_LOW({low:.2f} V below {s.supply_warn_v:g} V for {s.supply_warn_ticks} ticks): warning")
+        if self._supply_low[1] >= s.supply_critical_ticks and state == GaitState.DOUBLE_SUPPORT:
+            return f"SUPPLY_CRITICAL({low:.2f} V below {s.supply_critical_v:g} V for {self._supply_low[1]} ticks)"
+        return None
 
     def _supervise_bus(self, tick: int) -> None:
         """The integrity window and the failed sends (see the module doc)."""
@@ -381,6 +400,7 @@ class ControllerCore:
         self._check_fall(measurements)
         self._check_following(measurements, fresh)
         slipped = self._check_sticks(self.fsm.state, measurements, fresh)
+        supply_stop = self._check_supply(self.fsm.state, events)
         healthy = operational and max(ages) <= 2 and not self.pending_faults
         quiet_bus = tick - self._error_frame_tick >= self.safety.integrity_window_ticks  # F11: no new step
         # The gait of the state the FSM is in: whether the step is ready, whether the swing is done.
@@ -408,7 +428,7 @@ class ControllerCore:
             swing_done=done,
             fault=self.pending_faults[0] if self.pending_faults else None,
             other_faults=tuple(self.pending_faults[1:]),
-            protective_stop=self._overrun_stop or slipped,
+            protective_stop=self._overrun_stop or slipped or supply_stop,
             reset=self.reset_requested,
             start=self.walk_requested,
             stop=self.stop_requested,

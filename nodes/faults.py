@@ -16,7 +16,7 @@ import numpy as np
 
 from config.loader import AiderError
 from config.nodes_schema import FaultConfig
-from protocol.catalog import Catalog, MessageSpec
+from protocol.catalog import TICK_MS, Catalog, MessageSpec
 from protocol.codec import with_raw_value
 from protocol.errors import ProtocolError
 
@@ -98,6 +98,10 @@ class FaultInjector:
 
     def stuck_encoder(self, node: str, tick: int) -> bool:
         return bool(self._node_faults(node, "stuck_encoder", tick))
+
+    def supply_drop_v(self, node: str, tick: int) -> float:
+        """How far below its nominal the supply of ``node`` has fallen at ``tick`` (supply_ramp)."""
+        return sum(f.cfg.value * (tick - f.cfg.start_tick) * TICK_MS / 1000 for f in self._node_faults(node, "supply_ramp", tick))
 
     def outgoing(self, node: str, spec: MessageSpec, payload: bytes, tick: int) -> list[bytes]:
         """The payloads to send now in place of ``payload`` (none when dropped or delayed)."""

@@ -186,7 +186,7 @@ class NodesHost:
             port.tx.reset()
             port.stale.clear()
             port.stuck_position = None
-            self._send(port, port.heartbeat, (int(NmtState.BOOT_UP),), tick)
+            self._send(port, port.heartbeat, (int(NmtState.BOOT_UP), self._supply_v(port, tick)), tick)
         while fw.emcy:
             e = fw.emcy.pop(0)
             self._send(port, port.emcy, (int(e.code), e.error_register, e.detail), tick)
@@ -283,7 +283,11 @@ class NodesHost:
                 if stale is not None:  # a frozen application's heartbeat: the same bytes again
                     self._transmit(port.heartbeat, stale)
                 continue
-            self._send(port, port.heartbeat, (int(port.firmware.state),), tick)
+            self._send(port, port.heartbeat, (int(port.firmware.state), self._supply_v(port, tick)), tick)
+
+    def _supply_v(self, port: NodePort, tick: int) -> float:
+        """The supply voltage the board measures (the nominal, less an injected ramp; never below 0)."""
+        return max(0.0, self.cfg.nodes.supply_voltage_v - self.faults.supply_drop_v(port.name, tick))
 
     def _report(self, tick: int) -> None:
         for spec, payload in self.faults.due(tick):

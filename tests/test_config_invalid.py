@@ -217,7 +217,7 @@ BAD: list[Bad] = [
         "unknown key; expected one of: bus, controller, nodes, protocol, schema_version, sim (did you mean 'nodes'?)"),
     Bad("unknown-nested-typo", "unknown-key", _text(_CTT, "  command_timout_ticks: 3"),
         "nodes.command_timout_ticks", "unknown key; expected one of: command_timeout_ticks, faults, "
-        "heartbeat_timeout_ms, status_interval_s (did you mean 'command_timeout_ticks'?)"),
+        "heartbeat_timeout_ms, status_interval_s, supply_voltage_v (did you mean 'command_timeout_ticks'?)"),
     Bad("unknown-envelope-typo", "unknown-key", _text(_TORQUE, "    max_torque_n: 100.0"),
         "controller.envelope.max_torque_n", "(did you mean 'max_torque_nm'?)"),
     Bad("unknown-extra-flow-key", "unknown-key", _text(_HIP_JOINT, "hip:              {lower_rad: -0.50, upper_rad: 2.00, torque_limit_nm: 100.0, gear: 3,"),

@@ -381,6 +381,16 @@ def test_fault_reboot(request):
     assert [v.nmt_state for v in stateless(ticks[6], "HEARTBEAT_LH")] == [NmtState.PRE_OPERATIONAL]
 
 
+def test_fault_supply_ramp_lowers_the_heartbeats_voltage(request):
+    c, ticks = run_with(request, {"d": {"kind": "supply_ramp", "node": "RIGHT_KNEE", "value": 5.0, "start_tick": 4, "end_tick": 40}}, ticks=45)
+    volts = {k: values(got, "HEARTBEAT_RK")[0].supply_voltage_V for k, got in enumerate(ticks) if "HEARTBEAT_RK" in got}
+    nominal = BASE.nodes.supply_voltage_v
+    # 5 V a second is 0.1 V a tick, from tick 4; the nominal again from end_tick (another battery)
+    assert volts[4] == pytest.approx(nominal, abs=0.02) and volts[9] == pytest.approx(nominal - 0.5, abs=0.02)
+    assert volts[39] == pytest.approx(nominal - 3.5, abs=0.02) and volts[44] == pytest.approx(nominal, abs=0.02)
+    assert all(v.supply_voltage_V == pytest.approx(nominal, abs=0.02) for got in ticks for v in values(got, "HEARTBEAT_LH"))
+
+
 def test_fault_drive(request):
     c, ticks = run_with(request, {"d": {"kind": "drive_fault", "node": "RIGHT_HIP", "start_tick": 5}}, ticks=12)
     assert [v.emcy_code for v in values(ticks[5], "EMCY_RH")] == [EmcyCode.OVER_CURRENT]

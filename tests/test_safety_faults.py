@@ -375,6 +375,54 @@ def test_F19_a_stick_unloaded_for_less_than_the_budget_in_a_swing_is_tolerated()
         expect_walking_on(rig, t0)
 
 
+def supply_ramp(rig: FaultRig, t0: int, volts_per_s: float = 20.0) -> None:
+    """The battery runs down: every node reports its supply falling by ``volts_per_s`` from t0."""
+    for node in CATALOG.joint_nodes:
+        rig.inject_node("supply_ramp", node, start_tick=t0, value=volts_per_s)
+
+
+def test_F29_a_critical_supply_warns_then_holds_in_double_support_and_no_step_starts_again():
+    with at("stance") as rig:
+        t0 = rig.tick + 1
+        supply_ramp(rig, t0)
+        events = [e for r in rig.run(60) for e in r.events]
+        stop = expect_stop(rig, t0, HOLD, r"SUPPLY_CRITICAL\(\d+\.\d+ V below 21 V for 5 ticks", detect=25, react=0)
+        warning = [e for e in events if e.startswith("SUPPLY_LOW")]
+        assert len(warning) == 1 and "below 22 V for 25 ticks): warning" in warning[0], events
+        # The operator resets and starts again: the controller stands, then holds again at once.
+        rig.core.request_reset()
+        assert rig.run_until(lambda r: r.state == GaitState.STAND, 100), rig.state
+        steps = len(rig.core.steps)
+        rig.core.request_walk()
+        rig.run(20)
+        assert rig.state == HOLD and len(rig.core.steps) == steps
+        assert [s.cause.split("(")[0] for s in stops_from(rig, t0)] == ["SUPPLY_CRITICAL", "SUPPLY_CRITICAL"]
+        assert rig.oracle.violations == [] and stop.tick > t0
+
+
+def test_F29_a_supply_critical_in_a_swing_holds_once_the_swing_has_landed():
+    with at("swing") as rig:
+        t0 = rig.tick + 1
+        supply_ramp(rig, t0, volts_per_s=40.0)
+        assert rig.run_until(lambda r: r.state not in (GaitState.SWING_LEFT, GaitState.SWING_RIGHT), 200)
+        step = rig.core.steps[-1]
+        assert rig.state == GaitState.DOUBLE_SUPPORT and step.landed, (rig.state, step)
+        rig.run(5)
+        stop = expect_stop(rig, t0, HOLD, "SUPPLY_CRITICAL", detect=200, react=0)
+        assert stop.tick == step.end_tick + 1
+
+
+def test_F29_a_low_supply_above_critical_only_warns():
+    """One node reports 21.5 V (below the warning, above the critical level): a warning, and the
+    walk goes on."""
+    with at("stance") as rig:
+        t0 = rig.tick + 1
+        rig.inject_node("sensor_value", "LEFT_HIP", start_tick=t0, message="HEARTBEAT_LH", signal="supply_voltage_V", value=21.5)
+        events = [e for r in rig.run(400) for e in r.events]
+        assert [e for e in events if e.startswith("SUPPLY")] == ["SUPPLY_LOW(21.50 V below 22 V for 25 ticks): warning"]
+        expect_walking_on(rig, t0)
+
+
 def test_F18_a_push_that_topples_the_hhea_is_a_fall():
     """A 600 N backward push on the trunk for 0.3 s in double support: the HHEA falls; the trunk's
     tilt beyond fall_tilt_rad for fall_ticks ticks is a FALL, FAULT, and the roll-out ends."""

@@ -47,8 +47,8 @@ class BusCheckError(AiderError):
 
 def expected_record(spec: MessageSpec, tick: int) -> Any:
     """What ``spec`` carries in ``tick`` during a bus check (heartbeats report real states)."""
-    if spec.family == "HEARTBEAT":
-        return spec.record(nmt_state=int(NmtState.OPERATIONAL))
+    if spec.family == "HEARTBEAT":  # its other signals (the supply voltage) swept like any sensor's
+        return sweep_record(spec, tick)._replace(nmt_state=int(NmtState.OPERATIONAL))
     if spec.family == "CONTROLLER_HEARTBEAT":
         return spec.record(gait_state=int(GaitState.INIT))
     if spec.name == "SYNC":
@@ -120,7 +120,7 @@ class NodesSide:
     def boot(self) -> None:
         for node in self.nodes:
             spec = next(m for m in self.codec.catalog.sent_by(node) if m.family == "HEARTBEAT")
-            self._send(spec, spec.record(nmt_state=int(NmtState.BOOT_UP)))
+            self._send(spec, sweep_record(spec, 0)._replace(nmt_state=int(NmtState.BOOT_UP)))
 
     def run(self, idle_timeout_s: float) -> dict[str, Any]:
         self.boot()
