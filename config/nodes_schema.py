@@ -11,6 +11,8 @@ NODE_NAMES = ("LEFT_HIP", "LEFT_KNEE", "RIGHT_HIP", "RIGHT_KNEE")
 
 #: Faults that act on one of the node's messages (and need ``message``).
 MESSAGE_FAULTS = ("drop", "delay", "duplicate", "corrupt", "out_of_range", "sensor_value")
+#: Faults that set one signal of the message (and need ``signal`` and ``value``).
+VALUE_FAULTS = ("out_of_range", "sensor_value")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -60,7 +62,7 @@ class FaultConfig:
             fail("message", f"a {self.kind} fault acts on the whole node, not on a message")
         if self.kind == "supply_ramp" and (self.value is None or not 0.0 < self.value <= 100.0):
             fail("value", "a supply_ramp fault needs value: the fall in volts a second, in (0, 100]")
-        if self.kind in ("out_of_range", "sensor_value") and (self.signal is None or self.value is None):
+        if self.kind in VALUE_FAULTS and (self.signal is None or self.value is None):
             fail("signal" if self.signal is None else "value", f"an {self.kind} fault needs signal and value")
 
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from config.loader import AiderError
-from config.nodes_schema import FaultConfig
+from config.nodes_schema import VALUE_FAULTS, FaultConfig
 from protocol.catalog import TICK_MS, Catalog, MessageSpec
 from protocol.codec import with_raw_value
 from protocol.errors import ProtocolError
@@ -58,7 +58,7 @@ class FaultInjector:
                 raise FaultConfigError(f"nodes.faults.{name}.message: unknown message {cfg.message!r}") from None
             if spec.sender != cfg.node:
                 raise FaultConfigError(f"nodes.faults.{name}.message: {cfg.message} is sent by {spec.sender}, not {cfg.node}")
-        if cfg.kind in ("out_of_range", "sensor_value"):
+        if cfg.kind in VALUE_FAULTS:
             assert spec is not None and cfg.signal is not None and cfg.value is not None
             try:
                 sig = spec.signal(cfg.signal)
@@ -110,7 +110,7 @@ class FaultInjector:
             if f.spec is not spec or not f.active(tick):
                 continue
             kind = f.cfg.kind
-            if kind in ("out_of_range", "sensor_value"):
+            if kind in VALUE_FAULTS:
                 out = [with_raw_value(spec, p, f.cfg.signal, f.raw) for p in out]  # type: ignore[arg-type]
                 self.counts[kind] += 1
                 continue

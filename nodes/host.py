@@ -186,7 +186,7 @@ class NodesHost:
             port.tx.reset()
             port.stale.clear()
             port.stuck_position = None
-            self._send(port, port.heartbeat, (int(NmtState.BOOT_UP), self._supply_v(port, tick)), tick)
+            self._send_heartbeat(port, NmtState.BOOT_UP, tick)
         while fw.emcy:
             e = fw.emcy.pop(0)
             self._send(port, port.emcy, (int(e.code), e.error_register, e.detail), tick)
@@ -283,11 +283,13 @@ class NodesHost:
                 if stale is not None:  # a frozen application's heartbeat: the same bytes again
                     self._transmit(port.heartbeat, stale)
                 continue
-            self._send(port, port.heartbeat, (int(port.firmware.state), self._supply_v(port, tick)), tick)
+            self._send_heartbeat(port, port.firmware.state, tick)
 
-    def _supply_v(self, port: NodePort, tick: int) -> float:
-        """The supply voltage the board measures (the nominal, less an injected ramp; never below 0)."""
-        return max(0.0, self.cfg.nodes.supply_voltage_v - self.faults.supply_drop_v(port.name, tick))
+    def _send_heartbeat(self, port: NodePort, state: NmtState, tick: int) -> None:
+        """The board's heartbeat: its NMT state and the supply voltage it measures (the nominal,
+        less an injected ramp; never below 0)."""
+        supply_v = max(0.0, self.cfg.nodes.supply_voltage_v - self.faults.supply_drop_v(port.name, tick))
+        self._send(port, port.heartbeat, (int(state), supply_v), tick)
 
     def _report(self, tick: int) -> None:
         for spec, payload in self.faults.due(tick):
