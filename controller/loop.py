@@ -21,8 +21,9 @@ from controller.core import ControllerCore, TickResult
 from controller.fsm import SWINGS
 from controller.telemetry import TelemetryLog
 from controller.timing import TickStats
+from protocol.busload import wire_time_ns
 from protocol.catalog import TICK_MS
-from protocol.clock import Clock, MonotonicClock, TickTimer
+from protocol.clock import MAX_STALLS, STALL_NS, Clock, MonotonicClock, TickTimer
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver, Transmitter
 from protocol.enums import JointMode, NmtState
@@ -36,6 +37,9 @@ class LoopReport:
     send_failures: int = 0
     drained_max: int = 0  # most frames read in one tick
     events: list[str] = field(default_factory=list)
+    # real time: ticks woken STALL_NS or more late (protocol.clock): (tick, ms late)
+    stalls: list[tuple[int, float]] = field(default_factory=list)
+
 
 
 class LockstepLoop:
@@ -122,11 +126,15 @@ class LockstepLoop:
     def _expected(self) -> set[str]:
         return {n for n, s in self.core.nodes.items() if s.nmt == NmtState.OPERATIONAL}
 
-    def _tick(self, k: int, start_ns: int, read_until_ns: int, lateness_ns: int) -> TickResult:
-        """SYNC, read, update, write: one tick ``k`` that started at ``start_ns``."""
+    def _tick(self, k: int, start_ns: int, read_until_ns: int, lateness_ns: int, first_read_ns: int = 0) -> TickResult:
+        """SYNC, read (from ``first_read_ns`` on), update, write: one tick ``k`` that started at ``start_ns``."""
         self.tick = k
         self._idle_ns = 0
         self._send("SYNC", (k,))
+        t0 = self.clock.now_ns()
+        if first_read_ns > t0:
+            self.clock.sleep_until(first_read_ns)
+            self._idle_ns += self.clock.now_ns() - t0
         self._drain(k, read_until_ns, self._expected())
         result = self.core.tick(k)
         for name, values in result.frames:
@@ -173,15 +181,30 @@ class LockstepLoop:
         return self._tick(self.tick + 1, start, start + int(wait * 1e9), 0)
 
 
+READ_WINDOW_S = 0.012  # real time: the nodes' frames count for the tick if read this soon after its start
+
+
 class RealtimeLoop(LockstepLoop):
     """Real time: tick ``k`` starts at its absolute monotonic deadline (``TickTimer``: an overrun is
     counted and the loop re-aligns to the next boundary, never a catch-up burst); the nodes' frames
-    are read for at most ``read_window_s`` into the tick, then the core runs and the commands go
-    out for the nodes to apply at the next SYNC."""
+    are read for at most ``read_window_s`` into the tick (12 ms: the nodes answer in 1-2 ms, in the
+    vcan sandbox in 1-5 ms and now and then 8-15 ms; the core's work, 0.2-0.4 ms here and 1-2 ms
+    in the sandbox, fits in what is left), then the core runs and the commands go out for the
+    nodes to apply at the next SYNC.
 
-    def __init__(self, core: ControllerCore, bus: can.BusABC, *, read_window_s: float = 0.008, **kwargs) -> None:
+    Reading starts once the nodes' answers can all be on the wire (CANopen's synchronous window):
+    SYNC and every node's per-SYNC frames back to back at ``bitrate_bit_s`` with worst-case
+    stuffing (1.5 ms at 1 Mbit/s). Woken for each frame as it came, the controller (the higher
+    priority) took the CPU from the nodes between their frames where both share one (the vcan
+    sandbox: the last frames came after the read window, and three such ticks were a lost node)."""
+
+    def __init__(self, core: ControllerCore, bus: can.BusABC, *, read_window_s: float = READ_WINDOW_S,
+                 bitrate_bit_s: int = 1_000_000, **kwargs) -> None:
         super().__init__(core, bus, **kwargs)
         self.read_window_ns = int(read_window_s * 1e9)
+        catalog = self.codec.catalog
+        answers = tuple(catalog.by_id(fid) for n in core.node_names for fid in core.per_sync[n])
+        self.sync_window_ns = wire_time_ns((self.codec.spec("SYNC"), *answers), bitrate_bit_s)
         self.timer = TickTimer(self.clock, TICK_MS * 1_000_000)
 
     def step(self) -> TickResult:
@@ -191,4 +214,7 @@ class RealtimeLoop(LockstepLoop):
         self.stats.skipped = self.timer.skipped
         if self.timer.skipped > skipped_before:
             self.core.overran(k, self.timer.skipped - skipped_before)
-        return self._tick(k, start, start + self.read_window_ns, self.timer.last_lateness_ns)
+        lateness = self.timer.last_lateness_ns
+        if lateness >= STALL_NS and len(self.report.stalls) < MAX_STALLS:
+            self.report.stalls.append((k, round(lateness / 1e6, 1)))
+        return self._tick(k, start, start + self.read_window_ns, lateness, start + self.sync_window_ns)

@@ -13,7 +13,12 @@ and four :class:`~nodes.firmware.NodeFirmware`. It speaks only CAN through :mod:
 * timing: in lock-step each SYNC first advances the physics by exactly one 20 ms tick, so a run
   is deterministic and as fast as the CPU allows; in real time the physics is paced by the clock
   (one tick per 20 ms, re-aligned after an overrun, never caught up in a burst) and a SYNC samples
-  the newest state.
+  the newest state. The boards' cycle is synchronised to the SYNC, as a CiA 402 drive in a cyclic
+  synchronous mode locks its control cycle to it: the physics tick runs half a period after each
+  SYNC (:data:`SYNC_PHASE_NS`), so a SYNC never waits for a physics tick in progress. Without it
+  the two processes' phases were whatever their start times made them; where a physics tick
+  takes a third of the period (the vcan sandbox: 6 ms), a SYNC that came at a tick's start was
+  answered after the controller's 8 ms read window, three times in a row a lost node.
 
 Heartbeats follow the node's time: the SYNC tick in lock-step, its own timer in real time.
 """
@@ -35,7 +40,7 @@ from config.loader import AiderError
 from nodes.faults import FaultInjector
 from nodes.firmware import ERR_CURRENT, ERR_GENERIC, DriveCommand, JointLimits, NodeFirmware
 from protocol.catalog import TICK_MS, MessageSpec
-from protocol.clock import Clock, MonotonicClock
+from protocol.clock import MAX_STALLS, STALL_NS, Clock, MonotonicClock
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver, Transmitter
 from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
@@ -48,6 +53,8 @@ from sim.world import World
 
 TICK_NS = TICK_MS * 1_000_000
 RX_PER_TICK = 200  # real time: queued frames handled before a tick, at most (the controller's own bound)
+SYNC_PHASE_NS = TICK_NS // 2  # real time: the physics tick this long after a SYNC (see the module doc)
+SYNC_PULL = 8  # once locked, a SYNC corrects the phase by 1/8 of its error (a SYNC read late moves it little)
 #: gait states in which the patient walks (moves the sticks and leans); otherwise the patient stands
 WALKING_STATES = frozenset({GaitState.DOUBLE_SUPPORT, GaitState.SWING_LEFT, GaitState.SWING_RIGHT})
 
@@ -81,6 +88,8 @@ class HostStats:
     syncs: int = 0
     physics_ticks: int = 0
     overruns: int = 0
+    # real time: ticks come to STALL_NS or more late beyond the physics work (protocol.clock): (SYNC tick, ms late)
+    stalls: list[tuple[int, float]] = field(default_factory=list)
     frames_sent: int = 0
     send_failures: int = 0
     saturated: Counter[str] = field(default_factory=Counter)  # sensor values clipped to their full scale
@@ -157,6 +166,9 @@ class NodesHost:
         self._lists: _Lists | None = None
         self.start_ns = self.clock.now_ns()
         self.own_tick = -1  # real time: the node's own tick counter
+        self.phase_ns = 0  # real time: the tick schedule's shift that locks it to the SYNC
+        self._physics_end_ns = 0  # real time: when the last physics tick ended
+        self.sync_locked = False
         self.last_sync_tick = -1
         self.gait_state: GaitState | None = None
         self.on_sync_hook: Callable[[int], None] | None = None  # after each SYNC's reports (recording the ground truth)
@@ -241,9 +253,24 @@ class NodesHost:
         if self.lockstep:
             self._physics_tick()
             self._heartbeats(tick)
+        else:
+            self._lock_to_sync(self.clock.now_ns())
         self._report(tick)
         if self.on_sync_hook is not None:
             self.on_sync_hook(tick)
+
+    def _next_tick_ns(self) -> int:
+        return self.start_ns + self.phase_ns + (self.own_tick + 1) * TICK_NS
+
+    def _lock_to_sync(self, sync_ns: int) -> None:
+        """Real time: move the tick schedule toward its next tick ``SYNC_PHASE_NS`` after a SYNC
+        seen at ``sync_ns``: at once the first time, then by 1/``SYNC_PULL`` of the error. The node's
+        time (watchdogs, heartbeats) is not moved."""
+        error = (sync_ns + SYNC_PHASE_NS - self._next_tick_ns()) % TICK_NS
+        if error > TICK_NS // 2:
+            error -= TICK_NS  # the shortest way: a tick earlier or later by at most half a period
+        self.phase_ns += error if not self.sync_locked else int(error / SYNC_PULL)
+        self.sync_locked = True
 
     def on_timer(self) -> None:
         """Real time: the nodes' own 20 ms tick (physics, watchdogs, heartbeats)."""
@@ -394,8 +421,11 @@ class NodesHost:
             now = self.clock.now_ns()
             wait_until = deadline
             if not self.lockstep:
-                next_tick = self.start_ns + (self.own_tick + 1) * TICK_NS
+                next_tick = self._next_tick_ns()
                 if now >= next_tick:
+                    stalled_ns = now - max(next_tick, self._physics_end_ns)
+                    if stalled_ns >= STALL_NS and len(self.stats.stalls) < MAX_STALLS:
+                        self.stats.stalls.append((self.last_sync_tick, round(stalled_ns / 1e6, 1)))
                     # A board's CAN receive is interrupt-driven: what arrived while the last tick
                     # ran is seen before the next one, even when the physics overruns every tick.
                     handled |= self._drain_queued()
@@ -404,7 +434,8 @@ class NodesHost:
                         self.stats.overruns += 1
                         self.own_tick += int(late_ticks)
                     self.on_timer()
-                    if self.clock.now_ns() >= deadline:
+                    self._physics_end_ns = self.clock.now_ns()
+                    if self._physics_end_ns >= deadline:
                         return handled  # ticks that overrun every time still return to the caller
                     continue
                 wait_until = min(deadline, next_tick)
@@ -449,6 +480,7 @@ class NodesHost:
             "syncs": self.stats.syncs,
             "physics_ticks": self.stats.physics_ticks,
             "overruns": self.stats.overruns,
+            "stalls": [list(x) for x in self.stats.stalls],
             "receiver": self.rx.stats.as_dict(),
             "faults_injected": dict(self.faults.counts),
             "sensor_saturations": dict(self.stats.saturated),

@@ -24,6 +24,11 @@ def frame_bits(dlc: int, *, extended: bool = False, worst_case: bool = True) -> 
     return (34 + data - 1) // 4 + 34 + data + 13 if worst_case else 47 + data
 
 
+def wire_time_ns(frames: tuple[MessageSpec, ...], bitrate_bit_s: int) -> int:
+    """How long ``frames`` take on the bus one after another, worst-case stuffing."""
+    return sum(frame_bits(m.dlc) for m in frames) * 1_000_000_000 // bitrate_bit_s
+
+
 @dataclass(frozen=True)
 class TickLoad:
     """Frames and bits of one controller tick."""

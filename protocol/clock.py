@@ -58,6 +58,12 @@ class ManualClock:
             self._now = deadline_ns
 
 
+#: A periodic loop that wakes this late to a tick, beyond its own work, was not running: another
+#: process or the host had the CPU. The real-time loops report such stalls (at most MAX_STALLS).
+STALL_NS = 40_000_000
+MAX_STALLS = 20
+
+
 @dataclass
 class TickTimer:
     """Absolute-deadline pacing of a periodic loop.

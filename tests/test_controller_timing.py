@@ -1,4 +1,4 @@
-"""Tick statistics (cyclictest style) and the real-time set-up's reporting."""
+"""Tick statistics (cyclictest style) and the real-time set-up's reporting (protocol/realtime.py)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from controller import timing
-from controller.timing import TickStats, realtime_setup
+from controller.timing import TickStats
+from protocol import realtime as timing
+from protocol.realtime import realtime_setup
 
 PERIOD = 20_000_000
 
@@ -81,7 +82,7 @@ def test_realtime_setup_allocates_the_linear_algebra_buffers_before_the_loop():
     one's numpy has solved before)."""
     code = """
 import numpy as np
-from controller.timing import warm_up_linear_algebra
+from protocol.realtime import warm_up_linear_algebra
 def vm_kib():
     return next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmSize"))
 warm_up_linear_algebra()

@@ -457,6 +457,50 @@ def test_real_time_mode_paces_physics_by_the_clock_and_samples_at_sync():
             host.close()
 
 
+def test_real_time_physics_locks_to_half_a_period_after_the_sync():
+    """The boards' cycle follows the SYNC (CiA 402's cyclic synchronous modes): the first SYNC moves
+    the physics tick to half a period after it, later ones pull by an eighth of their error (a
+    SYNC read late moves the phase little), and without SYNCs the ticks keep their period."""
+    from nodes.host import SYNC_PHASE_NS
+    from protocol.clock import ManualClock
+
+    ms = 1_000_000
+    clock = ManualClock()
+    cfg = with_overrides(BASE, {"bus.channel": "nodes-phase"})
+    with virtual_bus("nodes-phase") as ctl_bus, virtual_bus("nodes-phase") as node_bus:
+        host = NodesHost(cfg, node_bus, lockstep=False, seed=1, clock=clock)
+        tx = Transmitter(host.codec)
+        ticks: list[int] = []
+        physics = host._physics_tick
+
+        def timed() -> None:
+            ticks.append(clock.now_ns() - host.start_ns)
+            physics()
+
+        host._physics_tick = timed
+
+        def run_until(t_ns: int) -> None:  # the nodes' loop, polled every 0.1 ms up to t_ns
+            while clock.now_ns() - host.start_ns < t_ns:
+                clock.advance(100_000)
+                host.poll(0.0)
+
+        try:
+            host.boot()
+            host.poll(0.0)
+            ctl_bus.send(tx.message("NMT_COMMAND", {"command": int(NmtCommand.START), "node_id": 0}))
+            run_until(3 * ms)
+            ctl_bus.send(tx.message("SYNC", {"tick": 0}))  # SYNCs at 3, 23, 43, ... ms
+            host.poll(0.0)
+            run_until(67 * ms)
+            assert ticks == [0, 3 * ms + SYNC_PHASE_NS, 23 * ms + SYNC_PHASE_NS, 43 * ms + SYNC_PHASE_NS]
+            ctl_bus.send(tx.message("SYNC", {"tick": 3}))  # the SYNC of 63 ms, read 4 ms late
+            host.poll(0.0)
+            run_until(120 * ms)
+            assert ticks[4:] == [73 * ms + ms // 2, 93 * ms + ms // 2, 113 * ms + ms // 2]  # pulled by 0.5 ms, not 4
+        finally:
+            host.close()
+
+
 def test_real_time_frames_are_read_between_ticks_that_all_overrun():
     """A board's CAN receive is interrupt-driven: physics slower than the 20 ms tick (as inside the
     vcan sandbox) must neither starve the commands, which would trip the command watchdog, nor keep

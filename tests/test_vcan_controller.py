@@ -24,6 +24,7 @@ Run through the vcan sandbox (``make test`` does: ``tools/vcan-run -- pytest -m 
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -32,6 +33,7 @@ from pathlib import Path
 import can
 import pytest
 
+from controller.loop import READ_WINDOW_S
 from protocol.clock import MonotonicClock
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver
@@ -45,6 +47,7 @@ AIDER = str(Path(sys.executable).with_name("aider-exo"))
 CYCLES = 10
 RT_CYCLES = 5
 SWINGS = {GaitState.SWING_LEFT: "l", GaitState.SWING_RIGHT: "r"}
+CODEC = Codec()
 
 
 def _recorded(path: Path) -> int:
@@ -53,7 +56,7 @@ def _recorded(path: Path) -> int:
 
 def _decode_capture(path: Path) -> tuple[list[Decoded], Receiver]:
     """candump's log through our DBC: every frame must decode, with no counter gap."""
-    receiver = Receiver(Codec())
+    receiver = Receiver(CODEC)
     frames = [m for m in can.CanutilsLogReader(str(path)) if m.arbitration_id != PROBE_ID]
     assert frames, "candump recorded nothing"
     results = [receiver.receive(m) for m in frames]
@@ -104,6 +107,18 @@ def _walk_two_processes(vcan0: str, log: Path, cycles: int, *, lockstep: bool) -
     return json.loads(ctl.stdout), json.loads(nodes_out)
 
 
+def _transitions(events: list[str]) -> list[tuple[int, str, str, str]]:
+    """The FSM's transitions in a summary's events: (tick, source, target, cause)."""
+    out = []
+    for e in events:
+        head, _, rest = e.partition(": ")
+        if " -> " in rest:
+            states, _, cause = rest.partition(": ")
+            source, _, target = states.partition(" -> ")
+            out.append((int(head.removeprefix("tick ")), source, target, cause))
+    return out
+
+
 def _check_walk(summary: dict, final: dict, cycles: int, node_errors: set[str] = frozenset({"NONE"})) -> None:
     """The controller walked ``cycles`` gait cycles without a FAULT and the HHEA did not fall; the
     nodes end with an error in ``node_errors``."""
@@ -147,26 +162,63 @@ def test_controller_walks_ten_gait_cycles_over_vcan0_with_the_nodes_as_a_second_
     assert _check_capture(log, summary) == list(range(summary["ticks"]))  # lock-step: every tick, in order
 
 
-# Causes of a stop that only a stalled guest gives a healthy real-time walk: the guest's one CPU,
-# shared with candump and user-mode Linux's traps, now and then stalls for more than the lost-node
-# budget (3 ticks) or overruns 3 times in 50 ticks. Such a walk is tried once more, and says so.
-GUEST_STALL = ("NODE_LOST", "SENSOR_LOST", "OVERRUN")
+# Causes of a stop that a stall gives a healthy real-time walk: the guest's one CPU, shared with
+# candump and user-mode Linux's traps, and the host's own vCPU (this VM's hypervisor took 5-100 % of
+# a CPU in bursts: /proc/stat's steal) now and then leave a process unscheduled for longer than the
+# lost-node budget (3 ticks, 60 ms). See _stall_evidence for what counts as a stall.
+STALL_STOPS = ("NODE_LOST", "SENSOR_LOST", "OVERRUN")
+RT_ATTEMPTS = 3
+
+
+def _stall_evidence(summary: dict, final: dict, log: Path, tick: int, cause: str) -> list[str]:
+    """What explains a stop at ``tick`` as a stall, from the two processes' own reports and from
+    candump's capture (the independent witness): stalls either process measured in the 10 ticks
+    before it; gaps of 40 ms or more between SYNCs (the controller was not running); and, for a
+    lost node or sensor, its frames answering one of the last four SYNCs after the read window
+    (the nodes were not running: they answer in 1-5 ms). A frame that never came is no evidence."""
+    evidence = [f"{who} stall {s}" for who, stalls in (("controller", summary["stalls"]), ("nodes", final["stalls"]))
+                for s in stalls if tick - 10 <= s[0] <= tick]
+    decoded, _ = _decode_capture(log)
+    syncs = {d.values.tick: d.timestamp for d in decoded if d.name == "SYNC"}
+    window = sorted(k for k in syncs if tick - 4 <= k <= tick)
+    evidence += [f"SYNC {a} -> {b} after {1e3 * (syncs[b] - syncs[a]):.0f} ms" for a, b in zip(window, window[1:])
+                 if syncs[b] - syncs[a] >= 0.040]
+    lost = re.fullmatch(r"(NODE|SENSOR)_LOST\((\w+)\)", cause)
+    if lost:
+        name = CODEC.catalog.message("JOINT_STATUS", lost[2]).name if lost[1] == "NODE" else lost[2]
+        answers = [d.timestamp for d in decoded if d.name == name]
+        for k in window:
+            answer = next((t for t in answers if t > syncs[k]), None)
+            if answer is not None and answer - syncs[k] > READ_WINDOW_S:
+                evidence.append(f"{name} answered SYNC {k} after {1e3 * (answer - syncs[k]):.1f} ms")
+    return evidence
 
 
 def test_controller_walks_five_gait_cycles_over_vcan0_in_real_time(vcan0, tmp_path):
-    for attempt in (1, 2):
+    """Both processes on their own 20 ms clocks walk 5 gait cycles. A walk stopped by a lost node,
+    a lost sensor or overruns is tried again (at most 3 walks) only when a stall measured by either
+    process explains the stop; any other stop fails. Three walks all stopped by stalls skip, naming
+    them: a real-time walk cannot be shown on a machine that does not give the CPU."""
+    stalled = []
+    for attempt in range(1, RT_ATTEMPTS + 1):
         log = tmp_path / f"candump-{attempt}.log"
         summary, final = _walk_two_processes(vcan0, log, RT_CYCLES, lockstep=False)
-        stops = [e for e in summary["events"] if "-> FAULT:" in e or "-> HOLD:" in e]
-        if attempt == 1 and stops and all(any(c in e for c in GUEST_STALL) for e in stops):
-            print(f"real-time walk, attempt 1 stopped by a guest stall: {stops}; once more")
-            continue
-        break
-    assert summary["mode"] == "realtime" and final["mode"] == "realtime"
+        assert summary["mode"] == "realtime" and final["mode"] == "realtime"
+        _check_capture(log, summary)  # whatever happened, what is on the bus is whole and in order
+        stops = [t for t in _transitions(summary["events"]) if t[2] in ("FAULT", "HOLD")]
+        if not stops:
+            break
+        tick, _, _, cause = stops[0]
+        evidence = _stall_evidence(summary, final, log, tick, cause)
+        assert cause.startswith(STALL_STOPS) and evidence, (
+            f"stopped without a stall to explain it: {stops}; stalls {summary['stalls']} {final['stalls']}")
+        stalled.append(f"attempt {attempt}: {cause} at tick {tick} ({'; '.join(evidence)})")
+        print(f"real-time walk {stalled[-1]}")
+    else:
+        pytest.skip("every real-time walk was stopped by a stall of the machine: " + "; ".join(stalled))
     # The nodes run on until SIGTERM: after the controller's exit their command watchdog may
     # quick-stop them, holding the HHEA upright (checked: no fall at their exit).
     _check_walk(summary, final, RT_CYCLES, {"NONE", "COMMAND_TIMEOUT"})
-    _check_capture(log, summary)
 
 
 def test_walk_command_starts_the_nodes_process_over_vcan0(vcan0, tmp_path):

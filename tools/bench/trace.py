@@ -18,7 +18,7 @@ over their ranges), written as a candump log with python-can's writer. All in on
    ``(sent_i - sent_0) - (t_i - t_0)``, with ``sent`` the bus's own send timestamp, the same
    measure for both: p50, p99 and max of its magnitude, the median over the rounds. First at the
    normal priority, then (unless refused or ``--no-realtime``) under the controller's real-time
-   set-up (``controller.timing.realtime_setup``: SCHED_FIFO, no deep idle states) for both. Then
+   set-up (``protocol.realtime.realtime_setup``: SCHED_FIFO, no deep idle states) for both. Then
    both with one 50 ms stall in the middle of the trace (a send that blocks, as a descheduled
    process would): the most frames sent within any 1 ms afterwards, against the most in any 1 ms
    of the trace itself.
@@ -226,7 +226,7 @@ def _replay(seconds: float, rounds: int, realtime: bool, clock: Clock) -> dict[s
         stall[player] = {"max_frames_in_1ms_after_stall": _max_in_1ms(stamps[stall_at:])}
     result["stall"] = stall
     if realtime:
-        from controller.timing import realtime_setup
+        from protocol.realtime import realtime_setup
 
         setup = realtime_setup(lock_memory=False)
         try:

@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from controller.loop import LockstepLoop, RealtimeLoop
     from controller.sdnotify import Notifier
     from controller.telemetry import TelemetryLog
-    from controller.timing import realtime_setup
+    from protocol.realtime import realtime_setup
     from protocol.bus import open_bus
     from protocol.clock import MonotonicClock
 
@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
                 rt = realtime_setup(cpu=args.cpu)
                 for warning in rt.warnings:
                     print(f"aider-exo controller: warning: {warning}", file=sys.stderr)
-                loop = RealtimeLoop(core, bus, **kwargs)
+                loop = RealtimeLoop(core, bus, bitrate_bit_s=cfg.bus.bitrate_bit_s, **kwargs)
             notifier.ready("controller loop running")
             next_status = clock.now_ns()
             result = None
@@ -149,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
         "send_failures": loop.report.send_failures,
         "receiver": loop.rx.stats.as_dict(),
         "timing": loop.stats.summary(),
+        "stalls": [list(x) for x in loop.report.stalls],
         "realtime_setup": {"applied": rt.applied, "warnings": rt.warnings} if rt else None,
         "events": loop.report.events,
         "telemetry": log_report,

@@ -8,6 +8,7 @@ import sys
 from tools.cli.common import StopSignals, add_config_options, load_cli_config, print_json
 
 
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "nodes",
@@ -29,6 +30,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "(tick, X_CoM/X_SP, fall): for tests and experiments, never sent on the bus")
     p.add_argument("--json", action="store_true", help="print the final state as JSON on stdout at exit")
     p.add_argument("--quiet", action="store_true", help="no status lines")
+    p.add_argument("--priority", type=int, metavar="P",
+                   help="real time: run the boards' loop SCHED_FIFO at P (below the controller's 50; default: the normal "
+                        "scheduler, which on a one-CPU machine leaves room for candump and the controller)")
     p.set_defaults(func=run)
 
 
@@ -37,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from nodes.host import NodesHost
     from protocol.bus import open_bus
     from protocol.clock import MonotonicClock
+    from protocol.realtime import realtime_setup
 
     cfg = load_cli_config(args, needs=("sim", "nodes"))
     if args.mode:
@@ -48,7 +53,15 @@ def run(args: argparse.Namespace) -> int:
             truth = open(args.truth, "w", encoding="utf-8") if args.truth else None
             if truth is not None:
                 host.on_sync_hook = lambda _tick: truth.write(json.dumps(host.truth(), allow_nan=True) + "\n")
+            rt = None
             try:
+                if not args.lockstep:
+                    # The boards are microcontrollers: no pause of the emulator's own (a full garbage
+                    # collection of the simulation's heap took 31 ms here and several times that in
+                    # the vcan sandbox, past the controller's 3-tick budget for a lost node).
+                    rt = realtime_setup(priority=args.priority)
+                    for warning in rt.warnings:
+                        print(f"aider-exo nodes: warning: {warning}", file=sys.stderr)
                 host.boot()
                 interval = cfg.nodes.status_interval_s if cfg.nodes else 1.0
                 while not stop.requested:
@@ -56,7 +69,10 @@ def run(args: argparse.Namespace) -> int:
                     if not args.quiet:
                         print(host.status_line(), file=sys.stderr, flush=True)
                 result = host.status()
+                result["realtime_setup"] = {"applied": rt.applied, "warnings": rt.warnings} if rt else None
             finally:
+                if rt is not None:
+                    rt.close()
                 host.close()
                 if truth is not None:
                     truth.close()

@@ -70,7 +70,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--spin-us", type=_non_negative, default=200.0, metavar="US",
                     help="poll the clock for the last US microseconds before each frame instead of sleeping (default 200)")
     rp.add_argument("--realtime", action="store_true",
-                    help="SCHED_FIFO, locked memory, no deep idle states (controller.timing; each refused step is a warning)")
+                    help="SCHED_FIFO, locked memory, no deep idle states (protocol.realtime; each refused step is a warning)")
     rp.add_argument("--json", action="store_true", help="machine-readable summary")
     rp.set_defaults(func=run_replay)
 
@@ -285,7 +285,7 @@ def run_replay(args: argparse.Namespace) -> int:
                             spin_s=args.spin_us / 1e6)
     warnings = src.warnings(decoder.receiver)
     if args.realtime:
-        from controller.timing import realtime_setup
+        from protocol.realtime import realtime_setup
 
         warnings += realtime_setup().warnings
     with StopSignals() as stop:
