@@ -244,7 +244,11 @@ def test_uml_probe_args_cwd_env_vcan0(tmp_path):
     assert seen["vcan0_type"] == "280"  # ARPHRD_CAN
     assert seen["can_roundtrip"] is True
     if os.uname().machine == "x86_64":
-        assert max(seen["clock_worst_outside_s"].values()) < 0.0005, seen["clock_worst_outside_s"]
+        # The monotonic clock, which the real-time loops read, within 0.5 ms of the kernel's; the wall
+        # clock within 5 ms (the kernel steps it now and then, by 1 ms seen in the sandbox while the
+        # monotonic one stayed within 2 us: the fast clock follows at its next anchor, within a second).
+        worst = seen["clock_worst_outside_s"]
+        assert worst["monotonic"] < 0.0005 and max(worst["gettimeofday"], worst["realtime"]) < 0.005, worst
     assert seen["monotonic_backwards"] == 0
     assert ("fastclock.so" in seen["ld_preload"]) == FASTCLOCK_EXPECTED
     assert r.stderr == b""

@@ -22,7 +22,9 @@
  * few times the jitter of one kernel call (0.1 ms in the guest) at the start and near it later,
  * and the span grows 10, 40, 160, 640 ms, then a second. Anchors are per thread (threads never
  * race); CLOCK_MONOTONIC never goes back, across the threads of a process either (a re-anchor
- * that would step back holds the time at the highest value returned). Every other clock, a call
+ * that would step back holds the time at the highest value returned). A step of the kernel's wall
+ * clock (1 ms seen in the guest, while CLOCK_MONOTONIC stayed within 2 us) shows in
+ * CLOCK_REALTIME and gettimeofday at the next anchor, within a second. Every other clock, a call
  * that asks for the time zone, and any call whose counter went backwards go to the kernel. Sleeps
  * and timers stay the kernel's: a loop that sleeps to an absolute deadline read from this clock
  * wakes within this clock's error of it.
