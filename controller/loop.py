@@ -37,7 +37,8 @@ class LoopReport:
     send_failures: int = 0
     drained_max: int = 0  # most frames read in one tick
     events: list[str] = field(default_factory=list)
-    # real time: ticks woken STALL_NS or more late (protocol.clock): (tick, ms late)
+    # ticks woken STALL_NS or more late, or whose work took that much longer than its CPU time
+    # (protocol.clock): (tick, ms)
     stalls: list[tuple[int, float]] = field(default_factory=list)
 
 
@@ -130,6 +131,7 @@ class LockstepLoop:
         """SYNC, read (from ``first_read_ns`` on), update, write: one tick ``k`` that started at ``start_ns``."""
         self.tick = k
         self._idle_ns = 0
+        cpu0 = self.clock.cpu_ns()
         self._send("SYNC", (k,))
         t0 = self.clock.now_ns()
         if first_read_ns > t0:
@@ -146,9 +148,14 @@ class LockstepLoop:
         elapsed = self.clock.now_ns() - start_ns
         work = elapsed - self._idle_ns
         self.stats.record(lateness_ns, work, elapsed)
+        self._stall(k, work - (self.clock.cpu_ns() - cpu0))  # not run while working (a lower bound: reads count as waiting)
         if self.telemetry is not None:
             self.telemetry.put(self._record(result, work, lateness_ns))
         return result
+
+    def _stall(self, tick: int, ns: int) -> None:
+        if ns >= STALL_NS and len(self.report.stalls) < MAX_STALLS:
+            self.report.stalls.append((tick, round(ns / 1e6, 1)))
 
     def _record(self, result: TickResult, work_ns: int, lateness_ns: int) -> dict:
         m, est = self.core.measurements, result.estimate
@@ -215,6 +222,7 @@ class RealtimeLoop(LockstepLoop):
         if self.timer.skipped > skipped_before:
             self.core.overran(k, self.timer.skipped - skipped_before)
         lateness = self.timer.last_lateness_ns
-        if lateness >= STALL_NS and len(self.report.stalls) < MAX_STALLS:
-            self.report.stalls.append((k, round(lateness / 1e6, 1)))
-        return self._tick(k, start, start + self.read_window_ns, lateness, start + self.sync_window_ns)
+        self._stall(k, lateness)
+        # With no node operational (booting, or all lost) no answer is due: read what came, do not wait.
+        read_until = start + (self.read_window_ns if self._expected() else self.sync_window_ns)
+        return self._tick(k, start, read_until, lateness, start + self.sync_window_ns)

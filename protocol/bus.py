@@ -127,7 +127,7 @@ def open_bus(cfg: BusConfig) -> can.BusABC:
     if problem is not None:
         raise BusUnavailableError(f"cannot open socketcan channel {cfg.channel!r}: {problem}; {_FIXES}")
     try:
-        return can.Bus(
+        bus = can.Bus(
             interface="socketcan",
             channel=cfg.channel,
             receive_own_messages=cfg.receive_own_messages,
@@ -135,3 +135,26 @@ def open_bus(cfg: BusConfig) -> can.BusABC:
         )
     except (OSError, can.CanError) as exc:
         raise BusUnavailableError(f"cannot open socketcan channel {cfg.channel!r}: {exc}; {_FIXES}") from None
+    _enlarge_receive_buffer(bus)
+    return bus
+
+
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)  # Linux; Python's socket module lacks the name
+
+#: The socket's receive buffer: about 1100 classic frames (a kernel skb of a CAN frame takes about
+#: 900 bytes), 1.2 s of our traffic and the floods of the vcan tests. The kernel's default (212992
+#: bytes, about 230 frames) overflowed when a process was not run for a moment during a flood, and
+#: frames were lost (a counter gap), as candump's -r option exists for.
+RECEIVE_BUFFER_BYTES = 1 << 20
+
+
+def _enlarge_receive_buffer(bus: can.BusABC) -> None:
+    """Past ``net.core.rmem_max`` where the process may (``SO_RCVBUFFORCE``, CAP_NET_ADMIN), else
+    up to it (the kernel caps ``SO_RCVBUF`` silently)."""
+    sock = getattr(bus, "socket", None)
+    if sock is None:
+        return
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, RECEIVE_BUFFER_BYTES)
+    except OSError:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)

@@ -20,6 +20,10 @@ class Clock(Protocol):
     def sleep_until(self, deadline_ns: int) -> None:
         """Return at (or after) ``deadline_ns``; at once if it has passed."""
 
+    def cpu_ns(self) -> int:
+        """CPU time of the calling thread in nanoseconds: less than the time passed while it ran
+        when it was not running (another process, or the host, had the CPU)."""
+
 
 def epoch_s() -> float:
     """Wall-clock seconds since the epoch: only for stamping CAN messages as python-can does
@@ -37,6 +41,9 @@ class MonotonicClock:
         delay = deadline_ns - time.monotonic_ns()
         if delay > 0:
             time.sleep(delay / 1e9)
+
+    def cpu_ns(self) -> int:
+        return time.thread_time_ns()
 
 
 class ManualClock:
@@ -57,9 +64,14 @@ class ManualClock:
         if deadline_ns > self._now:
             self._now = deadline_ns
 
+    def cpu_ns(self) -> int:
+        """The thread runs whenever time moves."""
+        return self._now
 
-#: A periodic loop that wakes this late to a tick, beyond its own work, was not running: another
-#: process or the host had the CPU. The real-time loops report such stalls (at most MAX_STALLS).
+
+#: A periodic loop that wakes this late to a tick beyond its own work, or whose work took this much
+#: longer than the CPU time it used, was not running: another process or the host had the CPU.
+#: The real-time loops report such stalls (at most MAX_STALLS).
 STALL_NS = 40_000_000
 MAX_STALLS = 20
 

@@ -108,19 +108,14 @@ def test_real_time_controller_and_real_time_nodes_hold_the_hhea_up(request):
     assert summary["ticks"] == 100 and summary["work"]["max_us"] > 0
 
 
-def test_real_time_controller_walks_two_gait_cycles_with_real_time_nodes():
-    """Walking in real time: the controller on absolute 20 ms deadlines, the nodes in a thread on
-    their own 20 ms physics timer, every value a frame on the in-process virtual bus (the vcan
-    sandbox cannot run the nodes in real time beside the controller: tests/test_vcan_controller.py). Two
-    gait cycles, no FAULT, no fall. Nothing here asserts a time; the overruns of both sides are in
-    the failure message, as a machine too loaded to keep up would show them."""
+def _real_time_walk(cycles: int, channel: str):
+    """The controller's real-time loop and the nodes in a thread on their own 20 ms timer, walking
+    ``cycles`` gait cycles (or until a FAULT or a fall); returns (loop, core, states, fall, nodes' status)."""
     from controller.loop import RealtimeLoop
     from nodes.host import running_in_thread
     from protocol.catalog import TICK_MS
     from tools.pipeline import default_max_time_s
 
-    cycles = 2
-    channel = "loop-realtime-walk"
     cfg = with_overrides(BASE, {"bus.channel": channel, "sim.mode": "sagittal"})
     node_bus = virtual_bus(channel)
     ctl_bus = virtual_bus(channel)
@@ -141,9 +136,32 @@ def test_real_time_controller_walks_two_gait_cycles_with_real_time_nodes():
         host.close()
         node_bus.shutdown()
         ctl_bus.shutdown()
-    timing = loop.stats.summary()
-    why = (f"events {loop.report.events[-4:]}, controller overruns {timing['overruns']} (skipped {timing['skipped_ticks']}), "
-           f"nodes overruns {nodes['overruns']}, status read-window misses {loop.report.timeouts}")
+    return loop, core, states, fall, nodes
+
+
+def test_real_time_controller_walks_two_gait_cycles_with_real_time_nodes():
+    """Walking in real time: the controller on absolute 20 ms deadlines, the nodes in a thread on
+    their own 20 ms physics timer, every value a frame on the in-process virtual bus. Two gait
+    cycles, no FAULT, no fall. Nothing here asserts a time; the overruns of both sides are in the
+    failure message, as a machine too loaded to keep up would show them. A walk stopped by a lost
+    node or overruns is tried again (at most 3 walks) only when either side measured a stall
+    (tests/test_vcan_controller.py: this VM's hypervisor takes a CPU away in bursts)."""
+    cycles = 2
+    stalled = []
+    for attempt in range(1, 4):
+        loop, core, states, fall, nodes = _real_time_walk(cycles, f"loop-realtime-walk-{attempt}")
+        timing = loop.stats.summary()
+        why = (f"events {loop.report.events[-4:]}, controller overruns {timing['overruns']} (skipped {timing['skipped_ticks']}), "
+               f"nodes overruns {nodes['overruns']}, status read-window misses {loop.report.timeouts}, "
+               f"stalls {loop.report.stalls} {nodes['stalls']}")
+        stops = [e for e in loop.report.events if "-> FAULT:" in e or "-> HOLD:" in e]
+        if fall is None and stops and any(c in stops[0] for c in ("NODE_LOST", "SENSOR_LOST", "OVERRUN")) \
+                and (loop.report.stalls or [s for s in nodes["stalls"] if s[0] >= 0]):
+            stalled.append(why)
+            continue
+        break
+    else:
+        pytest.skip("every real-time walk was stopped by a stall of the machine: " + "; ".join(stalled))
     assert GaitState.FAULT not in states and fall is None, why
     landed = [s.leg for s in core.steps if s.landed]
     assert len(landed) == 2 * cycles and landed[0] != landed[1], why

@@ -180,3 +180,54 @@ def test_cli_errors_are_one_line(capsys, tmp_path):
     assert main(["experiment", "learn", "--out", str(tmp_path), "--set", "controller.learning.noise_alpha=-3"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "controller.learning.noise_alpha" in err
+
+
+# -- what makes the model fall (random step lengths) -------------------------------------------
+
+
+def _walk_result(seed: int, swings: list[tuple[float, float, bool]], fell: bool, end: str = "walked") -> dict:
+    return {"job": {"seed": seed}, "swings": [list(s) for s in swings], "fell": fell, "end": end}
+
+
+def test_falls_analysis_splits_the_ends_by_length_ratio_and_previous_step():
+    from tools.experiment.falls import analyse, csv_rows
+
+    results = [
+        _walk_result(1, [(0.10, 0.40, True), (0.18, 0.50, True), (0.11, 0.45, False)], True, "hip height 0.52 m below 0.55"),
+        _walk_result(2, [(0.13, 0.42, True), (0.15, 0.48, True)], False),
+        _walk_result(3, [(0.17, 0.44, True)], True, "stalled"),  # ended between swings
+    ]
+    s = analyse(results)
+    assert (s["walks"], s["walks_ended_early"], s["steps"], s["steps_ended"], s["walks_ended_between_swings"]) == (3, 2, 6, 1, 1)
+    assert s["ends"] == {"hip height 0.52 m below 0.55": 1}
+    short = s["by_length"][0]  # 0.10 and 0.11: the 0.11 m step ended its walk
+    assert (short["steps"], short["ended"], short["percent"]) == (2, 1, 50.0)
+    assert short["below_median"]["ended"] == 0 and short["at_or_above_median"]["ended"] == 1
+    after_long = s["by_previous_length"][-1]  # the step after the 0.18 m one ended the walk
+    assert (after_long["steps"], after_long["ended"]) == (1, 1)
+    rows = csv_rows(results)
+    assert [r["previous_m"] for r in rows[:3]] == [None, 0.10, 0.18] and [r["ended"] for r in rows[:3]] == [False, False, True]
+
+
+def test_falls_experiment_walks_random_lengths_through_the_pipeline(tmp_path):
+    """``aider-exo experiment falls``: each step's length drawn from the span, every swing
+    reported (the last one too when the walk ended in it), the outputs written."""
+    code = main(["experiment", "falls", "--out", str(tmp_path), "--workers", "0", "--walks", "2", "--min", "0.10",
+                 "--max", "0.13", "--set", "controller.learning.steps_per_rollout=2", "--quiet", "--json"])
+    assert code == 0
+    s = json.loads((tmp_path / "falls.json").read_text())
+    assert s["walks"] == 2 and s["steps"] >= 2
+    with (tmp_path / "falls.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == s["steps"] and all(0.10 <= float(r["length_m"]) <= 0.13 for r in rows)
+    assert len({r["length_m"] for r in rows}) == len(rows)  # drawn, not fixed
+    for name in ("falls.png", "falls.md"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert main(["experiment", "falls", "--out", str(tmp_path), "--min", "0.01", "--quiet"]) == 1  # outside controller.step
+
+
+def test_a_random_length_job_needs_a_valid_span():
+    with pytest.raises(ExperimentError, match="exactly one"):
+        WalkJob(seed=0, cycles=1, fixed_m=0.1, random_m=(0.1, 0.2))
+    with pytest.raises(ExperimentError, match="min <= max"):
+        WalkJob(seed=0, cycles=1, random_m=(0.2, 0.1))

@@ -90,3 +90,22 @@ def test_two_processes_exchange_a_full_protocol_over_vcan0_recorded_by_candump(v
                 assert math.isclose(float(text), value, rel_tol=0, abs_tol=1e-9), (name, key, text, value)
             compared += 1
     assert compared > 1000
+
+
+def test_our_sockets_take_a_receive_buffer_of_about_1100_frames(vcan0):
+    """A process not run for a moment during a flood must not lose frames to the kernel's default
+    buffer (212992 bytes, about 230 frames): our sockets ask for RECEIVE_BUFFER_BYTES (the kernel
+    reports twice what it grants)."""
+    import socket
+
+    from config import default_config_path, load_config, with_overrides
+    from protocol.bus import RECEIVE_BUFFER_BYTES, open_bus
+
+    cfg = with_overrides(load_config(default_config_path()), {"bus.interface": "socketcan", "bus.channel": vcan0})
+    bus = open_bus(cfg.bus)
+    try:
+        granted = bus.socket.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    finally:
+        bus.shutdown()
+    expected = RECEIVE_BUFFER_BYTES if os.geteuid() == 0 else min(RECEIVE_BUFFER_BYTES, int(open("/proc/sys/net/core/rmem_max").read()))
+    assert granted >= 2 * expected, granted

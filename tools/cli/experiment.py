@@ -56,6 +56,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     cp.add_argument("--walks", type=positive_int, default=5, help="walks (seeds) per gait (default 5)")
     cp.set_defaults(func=run_compare)
 
+    fp = xsub.add_parser("falls", help="walks with random step lengths: what makes the model fall, and whether X_CoM/X_SP tells")
+    common(fp)
+    fp.add_argument("--seed", type=int, default=0, help="seed of the walks (default 0)")
+    fp.add_argument("--walks", type=positive_int, default=30, help="walks (default 30)")
+    fp.add_argument("--min", type=float, default=0.09, dest="min_m", help="shortest step drawn, m (default 0.09)")
+    fp.add_argument("--max", type=float, default=0.19, dest="max_m", help="longest step drawn, m (default 0.19)")
+    fp.set_defaults(func=run_falls)
+
     ap = xsub.add_parser("all", help="learning from A and B, then the comparison with the learned theta; figures, CSV, report")
     common(ap)
     seeds(ap)
@@ -112,3 +120,28 @@ def run_all(args: argparse.Namespace) -> int:
     plan = _plan(args, seeds=list(range(args.seed, args.seed + args.seeds)), starts=["A", "B"], updates=args.updates,
                  compare=True, compare_walks=args.walks)
     return _finish(args, plan)
+
+
+def run_falls(args: argparse.Namespace) -> int:
+    from tools.experiment.experiment import Progress
+    from tools.experiment.falls import falls_jobs, falls_run, report_lines
+    from tools.experiment.report import write_falls
+    from tools.experiment.runner import ExperimentError, WalkPool
+    from tools.experiment.schedule import drive
+
+    plan = _plan(args)
+    bounds = plan.cfg.controller.step
+    if not bounds.min_m <= args.min_m <= args.max_m <= bounds.max_m:
+        raise ExperimentError(f"--min {args.min_m} and --max {args.max_m} must lie in the safe range "
+                              f"[{bounds.min_m}, {bounds.max_m}] m (controller.step), min <= max")
+    jobs = falls_jobs(seed=args.seed, walks=args.walks, span=(args.min_m, args.max_m), cycles=plan.cycles, mode=args.mode)
+    bar = Progress(len(jobs), enabled=not args.quiet)
+    with StopSignals() as signals, WalkPool(plan.cfg, plan.workers, args.out / "cache", on_done=bar) as pool:
+        results = drive(pool, {"falls": falls_run(jobs)}, stop=lambda: signals.requested)["falls"]
+    s = write_falls(results, args.out)
+    if args.json:
+        print_json(s)
+    else:
+        print("\n".join(report_lines(s)))
+        print(f"written to {args.out}/: falls.csv, falls.json, falls.md, falls.png", file=sys.stderr)
+    return 0

@@ -96,6 +96,20 @@ def write_all(res: Results, out: Path) -> dict[str, Any]:
     return s
 
 
+def write_falls(results: list[dict[str, Any]], out: Path) -> dict[str, Any]:
+    """The random-length walks' outputs (:mod:`tools.experiment.falls`) under ``out``: falls.csv,
+    falls.json, falls.png and falls.md; returns the summary."""
+    from tools.experiment import falls
+
+    out.mkdir(parents=True, exist_ok=True)
+    s = falls.analyse(results)
+    _write(out / "falls.csv", _csv(falls.csv_rows(results)))
+    falls.figure(results, out / "falls.png", _canvas, _save)
+    _write(out / "falls.json", json.dumps(s, indent=2) + "\n")
+    _write(out / "falls.md", "# Random step lengths: where the walks end\n\n" + "\n".join(falls.report_lines(s)) + "\n")
+    return s
+
+
 def _mean(values: list[float]) -> float | None:
     return round(float(np.mean(values)), 5) if values else None
 

@@ -24,6 +24,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 
 from config import AiderError, Config, config_hash
 
@@ -36,23 +37,30 @@ class ExperimentError(AiderError):
 
 @dataclass(frozen=True)
 class WalkJob:
-    """One walk: ``fixed_m`` (every step that long, no compensation) or ``theta`` = (alpha,
-    Xhat_CoM) of the compensation; ``seed`` is the patient's stick placement and sensor noise."""
+    """One walk: ``fixed_m`` (every step that long, no compensation), ``theta`` = (alpha,
+    Xhat_CoM) of the compensation, or ``random_m`` = (min, max): every step's length drawn
+    uniformly from it (seeded by ``seed``: what makes the model fall, :mod:`tools.experiment.falls`);
+    ``seed`` is the patient's stick placement and sensor noise."""
 
     seed: int
     cycles: int
     fixed_m: float | None = None
     theta: tuple[float, float] | None = None
     mode: str = "sagittal"
+    random_m: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
-        if (self.fixed_m is None) == (self.theta is None):
-            raise ExperimentError("a walk job needs exactly one of fixed_m and theta")
+        if sum(x is not None for x in (self.fixed_m, self.theta, self.random_m)) != 1:
+            raise ExperimentError("a walk job needs exactly one of fixed_m, theta and random_m")
+        if self.random_m is not None and not 0 < self.random_m[0] <= self.random_m[1]:
+            raise ExperimentError(f"random step lengths need 0 < min <= max, got {self.random_m}")
 
     @property
     def gait(self) -> str:
         if self.fixed_m is not None:
             return f"fixed {self.fixed_m:.2f} m"
+        if self.random_m is not None:
+            return f"random {self.random_m[0]:.2f}-{self.random_m[1]:.2f} m"
         return f"theta ({self.theta[0]:.3f}, {self.theta[1]:.3f})"
 
     def key(self, cfg_digest: str) -> str:
@@ -73,10 +81,16 @@ def run_walk(cfg: Config, job: WalkJob) -> dict[str, Any]:
     simulation's ground truth; stick forces and step lengths are what the controller measured."""
     from controller.factory import step_bounds
     from controller.policy import StepPolicy, cycle_costs
+    from tools.experiment.falls import RandomLengths
     from tools.pipeline import walk
 
     bounds = step_bounds(cfg.controller)
-    policy = StepPolicy(bounds, fixed_m=job.fixed_m) if job.fixed_m is not None else StepPolicy(bounds, theta=job.theta)
+    if job.fixed_m is not None:
+        policy = StepPolicy(bounds, fixed_m=job.fixed_m)
+    elif job.random_m is not None:
+        policy = RandomLengths(bounds, span=job.random_m, rng=np.random.default_rng(np.random.SeedSequence([job.seed, 1])))
+    else:
+        policy = StepPolicy(bounds, theta=job.theta)
     outcome = walk(cfg, cycles=job.cycles, seed=job.seed, mode=job.mode, policy=policy)
     landed = outcome.landed
     forces = [s.mean_stick_force_n for s in landed]
@@ -97,6 +111,8 @@ def run_walk(cfg: Config, job: WalkJob) -> dict[str, Any]:
         "step_x_ratio": [round(s.x_ratio, 5) for s in landed],
         "step_stick_force_n": [round(f, 4) for f in forces],
         "step_arm_torque_nm": [round(t, 4) for t in torques],
+        # every step whose swing started, the last one too when it did not land: (length, X_CoM/X_SP at its start, landed)
+        "swings": [[round(s.length_m, 5), round(s.x_ratio, 5), s.landed] for s in outcome.steps if s.swing_tick >= 0],
         "mean_stick_force_n": _mean(outcome.mean_stick_force_n),  # the walk's own means (tools.pipeline.WalkOutcome)
         "mean_arm_torque_nm": _mean(outcome.mean_arm_torque_nm),
         "x_ratio_mae": None if not math.isfinite(outcome.ratio_mae) else round(outcome.ratio_mae, 5),

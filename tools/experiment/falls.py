@@ -1,0 +1,165 @@
+"""What makes the model fall: walks whose every step length is drawn at random.
+
+The paper's compensation ``g = g_init + alpha (Xhat_CoM - X_CoM/X_SP)`` can only help if where the
+CoM sits in the support at a swing's start (X_CoM/X_SP) tells which step is safe. This experiment
+asks the model directly: walks of ``N`` gait cycles whose steps are drawn uniformly from
+``[min, max]`` (no compensation; each walk its own patient and length seed), and for every step
+whose swing started, whether the walk ended in it (a fall, a fault or a HOLD before it landed).
+The end rate is then split by the step's own length, by X_CoM/X_SP at its start (below or above
+the median of its length band) and by the length of the step before it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Generator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from controller.compensation import StepGoal
+from controller.policy import StepPolicy
+from tools.experiment.learn import walk_seed
+from tools.experiment.runner import WalkJob
+
+#: length bands (m) of the tables
+BANDS = ((0.0, 0.12), (0.12, 0.14), (0.14, 0.16), (0.16, 1.0))
+
+
+@dataclass
+class RandomLengths(StepPolicy):
+    """Every swing's length drawn uniformly from ``span`` (no compensation)."""
+
+    span: tuple[float, float] = (0.0, 0.0)
+    rng: np.random.Generator | None = None
+
+    @property
+    def mode(self) -> str:
+        return "random"
+
+    def goal(self, x_ratio: float) -> tuple[StepGoal, None]:
+        assert self.rng is not None
+        length = float(self.rng.uniform(*self.span))
+        return StepGoal(length, length, False), None
+
+
+def falls_jobs(*, seed: int, walks: int, span: tuple[float, float], cycles: int, mode: str) -> list[WalkJob]:
+    return [WalkJob(seed=walk_seed(seed, 200, i), cycles=cycles, random_m=span, mode=mode) for i in range(walks)]
+
+
+def falls_run(jobs: list[WalkJob]) -> Generator[list[WalkJob], list[dict[str, Any]], list[dict[str, Any]]]:
+    """One batch of every job (a run for :func:`tools.experiment.schedule.drive`)."""
+    results = yield jobs
+    return results
+
+
+@dataclass(frozen=True)
+class Swing:
+    walk_seed: int
+    index: int  # in its walk
+    length_m: float
+    x_ratio: float  # X_CoM/X_SP at the swing's start
+    previous_m: float | None  # the step before it (None: the first)
+    ended: bool  # the walk ended in this step, before it landed
+    end: str  # how the walk ended (for the ended step)
+
+
+def swings(results: list[dict[str, Any]]) -> list[Swing]:
+    out = []
+    for r in results:
+        rows = r["swings"]
+        for i, (length, ratio, landed) in enumerate(rows):
+            ended = not landed and r["fell"]
+            out.append(Swing(r["job"]["seed"], i, length, ratio, rows[i - 1][0] if i else None, ended,
+                             r["end"] if ended else ""))
+    return out
+
+
+def _rate(rows: list[Swing]) -> dict[str, Any]:
+    n = len(rows)
+    ended = sum(s.ended for s in rows)
+    return {"steps": n, "ended": ended, "percent": round(100.0 * ended / n, 2) if n else None}
+
+
+def _band(lo: float, hi: float) -> str:
+    return f"{lo:.2f}-{hi:.2f}" if hi < 1.0 else f">= {lo:.2f}"
+
+
+def analyse(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """The end rate per step by its length, by X_CoM/X_SP within its length band, and by the
+    length of the step before it."""
+    rows = swings(results)
+    by_length, by_previous = [], []
+    for lo, hi in BANDS:
+        band = [s for s in rows if lo <= s.length_m < hi]
+        entry = {"band_m": _band(lo, hi), **_rate(band)}
+        ratios = [s.x_ratio for s in band if np.isfinite(s.x_ratio)]
+        if ratios:
+            median = float(np.median(ratios))
+            entry["x_ratio_median"] = round(median, 4)
+            entry["x_ratio_std"] = round(float(np.std(ratios)), 4)
+            entry["below_median"] = _rate([s for s in band if s.x_ratio < median])
+            entry["at_or_above_median"] = _rate([s for s in band if s.x_ratio >= median])
+        by_length.append(entry)
+        by_previous.append({"band_m": _band(lo, hi),
+                            **_rate([s for s in rows if s.previous_m is not None and lo <= s.previous_m < hi])})
+    ends: dict[str, int] = {}
+    for s in rows:
+        if s.ended:
+            ends[s.end] = ends.get(s.end, 0) + 1
+    return {
+        "walks": len(results), "walks_ended_early": sum(r["fell"] for r in results),
+        "steps": len(rows), "steps_ended": sum(s.ended for s in rows),
+        # a walk can also end between swings (in double support): it has no ended step
+        "walks_ended_between_swings": sum(r["fell"] for r in results) - sum(s.ended for s in rows),
+        "ends": ends, "by_length": by_length, "by_previous_length": by_previous,
+    }
+
+
+def csv_rows(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    return [{"walk_seed": s.walk_seed, "step": s.index, "length_m": s.length_m, "x_ratio": s.x_ratio,
+             "previous_m": s.previous_m, "ended": s.ended, "end": s.end} for s in swings(results)]
+
+
+def figure(results: list[dict[str, Any]], path, canvas, save) -> None:
+    """(a) each step's length against X_CoM/X_SP at its start, the steps a walk ended in marked;
+    (b) the end rate by the step's own length and by the length of the step before it."""
+    rows = swings(results)
+    fig, ax = canvas(1, 2, (11, 4.5))
+    a, b = ax[0]
+    ok = [s for s in rows if not s.ended and np.isfinite(s.x_ratio)]
+    bad = [s for s in rows if s.ended and np.isfinite(s.x_ratio)]
+    a.scatter([s.length_m for s in ok], [s.x_ratio for s in ok], s=8, c="tab:gray", alpha=0.5, label="landed (or walked on)")
+    a.scatter([s.length_m for s in bad], [s.x_ratio for s in bad], s=30, c="tab:red", marker="x", label="the walk ended in it")
+    a.set(xlabel="step length (m)", ylabel="X_CoM/X_SP at the swing's start", title="(a) every step of the random-length walks")
+    a.legend(loc="best", fontsize=8)
+    s = analyse(results)
+    x = np.arange(len(BANDS))
+    own = [e["percent"] or 0.0 for e in s["by_length"]]
+    prev = [e["percent"] or 0.0 for e in s["by_previous_length"]]
+    b.bar(x - 0.2, own, 0.4, label="by the step's own length")
+    b.bar(x + 0.2, prev, 0.4, label="by the length of the step before it")
+    b.set_xticks(x, [e["band_m"] for e in s["by_length"]])
+    b.set(xlabel="length band (m)", ylabel="steps the walk ended in (%)", title="(b) where walks end")
+    b.legend(loc="best", fontsize=8)
+    save(fig, path)
+
+
+def report_lines(s: dict[str, Any]) -> list[str]:
+    lines = [
+        f"{s['walks']} walks, {s['walks_ended_early']} ended early; {s['steps']} swings, {s['steps_ended']} of them "
+        f"ended the walk ({s['walks_ended_between_swings']} walks ended between swings)",
+        "",
+        "| length band m | swings | ended % | X_CoM/X_SP median (sd) | ended % below / at or above the median | ended % after a step of this band |",
+        "|---|---|---|---|---|---|",
+    ]
+    for own, prev in zip(s["by_length"], s["by_previous_length"]):
+        lo, hi = own.get("below_median", {}).get("percent"), own.get("at_or_above_median", {}).get("percent")
+        med = f"{own['x_ratio_median']:.3f} ({own['x_ratio_std']:.3f})" if "x_ratio_median" in own else "-"
+        lines.append(f"| {own['band_m']} | {own['steps']} | {_p(own['percent'])} | {med} | {_p(lo)} / {_p(hi)} | "
+                     f"{_p(prev['percent'])} ({prev['steps']}) |")
+    return lines
+
+
+def _p(x: float | None) -> str:
+    return "-" if x is None else f"{x:.1f}"
