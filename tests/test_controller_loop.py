@@ -201,3 +201,37 @@ def test_the_loop_writes_one_telemetry_record_per_tick(rig, tmp_path):
     assert records[-1]["state"] == "STAND" and records[-1]["mode"] == ["HOLD"] * 4
     assert 0.0 < records[-1]["x_ratio"] < 1.0 and len(records[-1]["com_m"]) == 3
     assert any("INIT -> STAND" in e for r in records for e in r["events"])
+
+
+class _FloodBus:
+    """A bus across processes that delivers ``n`` foreign frames (an ID none of ours), one every
+    ``gap_ns`` of the clock, and then nothing."""
+
+    def __init__(self, clock, n: int, gap_ns: int) -> None:
+        import can
+
+        self.clock, self.left, self.gap_ns = clock, n, gap_ns
+        self.frame = can.Message(arbitration_id=0x7EF, data=bytes(8), is_extended_id=False)
+
+    def recv(self, timeout=None):
+        if self.left:
+            self.left -= 1
+            self.clock.advance(self.gap_ns)
+            return self.frame
+        self.clock.advance(int((timeout or 0) * 1e9))
+        return None
+
+
+@pytest.mark.parametrize(("gap_us", "read"), [(0, 200), (100, 600)])
+def test_a_lockstep_tick_reads_at_most_200_frames_per_20_ms_it_waits(gap_us, read):
+    """The drain's bound scales with the time waited: a flood arriving all at once stops it at 200
+    frames, one spread over 60 ms of a lock-step tick (a stalled peer) is read in full, so the
+    nodes' answers behind it are not left for a timeout (the cangen flood over vcan0 did that)."""
+    from protocol.clock import ManualClock
+
+    clock = ManualClock()
+    bus = _FloodBus(clock, 600, gap_us * 1000)
+    loop = LockstepLoop(ControllerCore(BASE.controller), bus, clock=clock)
+    loop._drain(0, clock.now_ns() + 2_000_000_000, {"LEFT_HIP"})
+    assert loop.report.drained_max == read
+    assert loop.rx.stats.rejected_total == read and loop.report.timeouts == 1

@@ -593,7 +593,8 @@ def _flood_figures(summary: dict, final: dict, msgs: list[can.Message], flood: i
 
 def _check_walked(summary: dict, final: dict) -> None:
     events = summary["events"]
-    assert not any("FAULT" in e or "HOLD" in e for e in events), events
+    assert not any("FAULT" in e or "HOLD" in e for e in events), (
+        [e for e in events if "FAULT" in e or "HOLD" in e][:3], summary["timeouts"], summary["stalls"], final["stalls"])
     assert summary["steps_completed"] == 2 * FLOOD_CYCLES, (summary["steps_completed"], events[-5:])
     assert summary["final_state"] not in ("FAULT", "HOLD") and summary["send_failures"] == 0
     assert {n["error"] for n in final["nodes"].values()} == {"NONE"}
