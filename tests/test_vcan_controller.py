@@ -169,7 +169,8 @@ def test_controller_walks_ten_gait_cycles_over_vcan0_with_the_nodes_as_a_second_
 # candump and user-mode Linux's traps, and the host's own vCPU (this VM's hypervisor took 5-100 % of
 # a CPU in bursts: /proc/stat's steal, highest under user-mode Linux's traps) now and then leave a
 # process unscheduled for longer than the lost-node budget (3 ticks, 60 ms) or the overrun budget
-# (3 in 50 ticks). A fall is never one: it fails the test. See _stall_evidence for what counts.
+# (3 in 50 ticks). A fall is never one (see the test). _stall_evidence says what counts; the four
+# boards are one process, so any board's late answer shows that process was not running.
 STALL_STOPS = ("NODE_LOST", "SENSOR_LOST", "OVERRUN")
 RT_ATTEMPTS = 3
 
