@@ -308,6 +308,17 @@ def test_F25_one_overrun_is_only_counted():
         expect_walking_on(rig, t0)
 
 
+def test_F25_overruns_before_the_nodes_are_up_are_not_budgeted():
+    """In INIT nothing is commanded and a process's first ticks are its slowest: overruns there,
+    even one far beyond the budget, are the loop's statistics only, not a protective stop."""
+    from controller.core import ControllerCore
+
+    core = ControllerCore(CFG.controller)
+    for k in (1, 2, 3):
+        core.overran(k, SAFETY.overrun_max_ticks + 7)
+    assert core.tick(4).state == GaitState.INIT
+
+
 # -- rows checked at the controller (layer MP) ------------------------------------------------------
 
 

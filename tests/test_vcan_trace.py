@@ -24,6 +24,7 @@ import can
 import numpy as np
 import pytest
 
+from protocol.bus import RECEIVE_BUFFER_BYTES
 from protocol.clock import MonotonicClock
 from protocol.codec import Codec
 from tests.test_trace_walk import assert_cantools_agrees
@@ -61,7 +62,9 @@ def candump(channel, path):
     be in the file before candump is stopped (in the slow sandbox it can be a few frames behind)."""
     clock = MonotonicClock()
     with path.open("w") as out:
-        proc = subprocess.Popen(["candump", "-L", channel], stdout=out, stderr=subprocess.PIPE)
+        # Our sockets' receive buffer for candump's too: with the kernel's default it dropped 93
+        # frames of a flood while the guest was slow, and the witness must see every frame.
+        proc = subprocess.Popen(["candump", "-L", "-r", str(RECEIVE_BUFFER_BYTES), channel], stdout=out, stderr=subprocess.PIPE)
         try:
             with can.Bus(interface="socketcan", channel=channel, ignore_config=True) as probe:
                 deadline = clock.now_ns() + 20_000_000_000

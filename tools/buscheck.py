@@ -30,7 +30,7 @@ import numpy as np
 
 from config import Config
 from config.loader import AiderError
-from protocol.bus import open_bus
+from protocol.bus import RECEIVE_BUFFER_BYTES, open_bus
 from protocol.catalog import TICK_MS, MessageSpec
 from protocol.clock import Clock, MonotonicClock, TickTimer
 from protocol.codec import Codec, Decoded
@@ -237,7 +237,9 @@ class Candump:
             raise BusCheckError("candump not found: install can-utils (apt-get install can-utils)")
         self.path = path
         self._file = path.open("wb")
-        self._proc = subprocess.Popen([exe, "-L", channel], stdout=self._file, stderr=subprocess.PIPE)
+        # With our sockets' receive buffer: the kernel's default let candump drop frames of a flood.
+        self._proc = subprocess.Popen([exe, "-L", "-r", str(RECEIVE_BUFFER_BYTES), channel], stdout=self._file,
+                                      stderr=subprocess.PIPE)
 
     def stop(self, clock: Clock, settle_s: float = 0.3) -> None:
         clock.sleep_until(clock.now_ns() + int(settle_s * 1e9))  # let the last frames reach the recorder
