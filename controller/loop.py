@@ -62,7 +62,7 @@ class LockstepLoop:
         self.telemetry = telemetry
         self.clock = clock or MonotonicClock()
         self.heartbeat = self.codec.spec("CONTROLLER_HEARTBEAT")
-        self.stats = TickStats(TICK_MS * 1_000_000)
+        self.stats = TickStats(self.tick_ns)
         self.report = LoopReport()
         self.tick = -1
         self._idle_ns = 0  # time of the tick spent waiting for (or running) the nodes
@@ -219,7 +219,7 @@ class RealtimeLoop(LockstepLoop):
         catalog = self.codec.catalog
         answers = tuple(catalog.by_id(fid) for n in core.node_names for fid in core.per_sync[n])
         self.sync_window_ns = wire_time_ns((self.codec.spec("SYNC"), *answers), bitrate_bit_s)
-        self.timer = TickTimer(self.clock, TICK_MS * 1_000_000)
+        self.timer = TickTimer(self.clock, self.tick_ns)
 
     def step(self) -> TickResult:
         skipped_before = self.timer.skipped
