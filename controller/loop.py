@@ -134,8 +134,10 @@ class LockstepLoop:
     def _expected(self) -> set[str]:
         return {n for n, s in self.core.nodes.items() if s.nmt == NmtState.OPERATIONAL}
 
-    def _tick(self, k: int, start_ns: int, read_until_ns: int, lateness_ns: int, first_read_ns: int = 0) -> TickResult:
-        """SYNC, read (from ``first_read_ns`` on), update, write: one tick ``k`` that started at ``start_ns``."""
+    def _tick(self, k: int, start_ns: int, read_until_ns: int, lateness_ns: int, expected: set[str],
+              first_read_ns: int = 0) -> TickResult:
+        """SYNC, read (from ``first_read_ns`` on, until the ``expected`` nodes reported), update, write:
+        one tick ``k`` that started at ``start_ns``."""
         self.tick = k
         self._idle_ns = 0
         cpu0 = self.clock.cpu_ns()
@@ -144,7 +146,7 @@ class LockstepLoop:
         if first_read_ns > t0:
             self.clock.sleep_until(first_read_ns)
             self._idle_ns += self.clock.now_ns() - t0
-        self._drain(k, read_until_ns, self._expected())
+        self._drain(k, read_until_ns, expected)
         result = self.core.tick(k)
         for name, values in result.frames:
             self._send(name, values)
@@ -191,8 +193,9 @@ class LockstepLoop:
 
     def step(self) -> TickResult:
         start = self.clock.now_ns()
-        wait = self.tick_timeout_s if self._expected() else self.boot_wait_s
-        return self._tick(self.tick + 1, start, start + int(wait * 1e9), 0)
+        expected = self._expected()
+        wait = self.tick_timeout_s if expected else self.boot_wait_s
+        return self._tick(self.tick + 1, start, start + int(wait * 1e9), 0, expected)
 
 
 READ_WINDOW_S = 0.012  # real time: the nodes' frames count for the tick if read this soon after its start
@@ -231,5 +234,6 @@ class RealtimeLoop(LockstepLoop):
         lateness = self.timer.last_lateness_ns
         self._stall(k, lateness)
         # With no node operational (booting, or all lost) no answer is due: read what came, do not wait.
-        read_until = start + (self.read_window_ns if self._expected() else self.sync_window_ns)
-        return self._tick(k, start, read_until, lateness, start + self.sync_window_ns)
+        expected = self._expected()
+        read_until = start + (self.read_window_ns if expected else self.sync_window_ns)
+        return self._tick(k, start, read_until, lateness, expected, start + self.sync_window_ns)

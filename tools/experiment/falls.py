@@ -11,6 +11,7 @@ the median of its length band) and by the length of the step before it.
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Generator
 from dataclasses import dataclass
 from typing import Any
@@ -103,10 +104,7 @@ def analyse(results: list[dict[str, Any]]) -> dict[str, Any]:
         by_length.append(entry)
         by_previous.append({"band_m": _band(lo, hi),
                             **_rate([s for s in rows if s.previous_m is not None and lo <= s.previous_m < hi])})
-    ends: dict[str, int] = {}
-    for s in rows:
-        if s.ended:
-            ends[s.end] = ends.get(s.end, 0) + 1
+    ends = dict(Counter(s.end for s in rows if s.ended))
     return {
         "walks": len(results), "walks_ended_early": sum(r["fell"] for r in results),
         "steps": len(rows), "steps_ended": sum(s.ended for s in rows),
@@ -121,9 +119,10 @@ def csv_rows(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
              "previous_m": s.previous_m, "ended": s.ended, "end": s.end} for s in swings(results)]
 
 
-def figure(results: list[dict[str, Any]], path, canvas, save) -> None:
+def figure(results: list[dict[str, Any]], s: dict[str, Any], path, canvas, save) -> None:
     """(a) each step's length against X_CoM/X_SP at its start, the steps a walk ended in marked;
-    (b) the end rate by the step's own length and by the length of the step before it."""
+    (b) the end rate by the step's own length and by the length of the step before it (``s``:
+    :func:`analyse` of ``results``)."""
     rows = swings(results)
     fig, ax = canvas(1, 2, (11, 4.5))
     a, b = ax[0]
@@ -133,7 +132,6 @@ def figure(results: list[dict[str, Any]], path, canvas, save) -> None:
     a.scatter([s.length_m for s in bad], [s.x_ratio for s in bad], s=30, c="tab:red", marker="x", label="the walk ended in it")
     a.set(xlabel="step length (m)", ylabel="X_CoM/X_SP at the swing's start", title="(a) every step of the random-length walks")
     a.legend(loc="best", fontsize=8)
-    s = analyse(results)
     x = np.arange(len(BANDS))
     own = [e["percent"] or 0.0 for e in s["by_length"]]
     prev = [e["percent"] or 0.0 for e in s["by_previous_length"]]

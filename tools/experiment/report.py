@@ -104,7 +104,7 @@ def write_falls(results: list[dict[str, Any]], out: Path) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
     s = falls.analyse(results)
     _write(out / "falls.csv", _csv(falls.csv_rows(results)))
-    falls.figure(results, out / "falls.png", _canvas, _save)
+    falls.figure(results, s, out / "falls.png", _canvas, _save)
     _write(out / "falls.json", json.dumps(s, indent=2) + "\n")
     _write(out / "falls.md", "# Random step lengths: where the walks end\n\n" + "\n".join(falls.report_lines(s)) + "\n")
     return s
