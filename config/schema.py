@@ -14,6 +14,7 @@ default, so a file that forgets them is rejected.
 
 from __future__ import annotations
 
+import ipaddress
 import re
 from dataclasses import dataclass
 from typing import Literal
@@ -28,6 +29,9 @@ __all__ = ["SCHEMA_VERSION", "BusConfig", "Config", "ProtocolConfig"]
 #: Version of the file format this program reads (``schema_version`` key).
 SCHEMA_VERSION = 1
 
+#: python-can's UDP multicast port (can.interfaces.udp_multicast.UdpMulticastBus.DEFAULT_PORT)
+UDP_DEFAULT_PORT = 43113
+
 # Linux network interface names: at most IFNAMSIZ - 1 = 15 bytes; we accept the
 # portable subset of characters.
 _LINUX_IFNAME = re.compile(r"[A-Za-z0-9_.-]{1,15}")
@@ -39,27 +43,32 @@ class BusConfig:
 
     Attributes
     ----------
-    interface : {"socketcan", "virtual"}
+    interface : {"socketcan", "virtual", "udp_multicast"}
         Bus backend.
     channel : str
-        Interface name (socketcan) or bus name (virtual).
+        Interface name (socketcan), bus name (virtual) or multicast group (udp_multicast).
     bitrate_bit_s : int
         Nominal bitrate in bit/s, for bus-load figures.
     receive_own_messages : bool
         Whether a sender also receives its own frames.
     """
 
-    interface: Literal["socketcan", "virtual"] = field_spec(
+    interface: Literal["socketcan", "virtual", "udp_multicast"] = field_spec(
         doc=(
             "Bus backend: 'socketcan' for a Linux SocketCAN interface (vcan0, can0), "
-            "'virtual' for an in-process bus shared by everything in one process."
+            "'virtual' for an in-process bus shared by everything in one process, "
+            "'udp_multicast' for python-can's CAN-over-UDP-multicast bus between processes "
+            "or hosts without CAN hardware (simulation and hardware-in-the-loop only: no "
+            "arbitration, no delivery guarantee)."
         ),
     )
     channel: str = field_spec(
         doc=(
             "For socketcan the Linux interface name (at most 15 characters from "
             "A-Z a-z 0-9 _ . -), e.g. vcan0 or can0; for virtual any non-empty name, "
-            "users of the same name share one bus."
+            "users of the same name share one bus; for udp_multicast a multicast group, "
+            "IPv4 or IPv6, with an optional port: 239.74.163.2, 239.74.163.2:43114, "
+            "[ff15:7079:7468:6f6e:6465:6d6f:6d63:6173]:43114 (default port 43113)."
         ),
     )
     bitrate_bit_s: int = field_spec(
@@ -90,6 +99,33 @@ class BusConfig:
                 f"{shown} is not a valid Linux interface name for socketcan "
                 "(1 to 15 characters from A-Z a-z 0-9 _ . -)",
             )
+        if self.interface == "udp_multicast":
+            self.udp_group()
+
+    def udp_group(self) -> tuple[str, int]:
+        """The multicast group and port of a udp_multicast ``channel`` (fails naming the key)."""
+        text = self.channel.strip()
+        host, port = text, UDP_DEFAULT_PORT
+        if text.startswith("["):  # [IPv6]:port
+            host, sep, rest = text[1:].partition("]")
+            if not sep or (rest and not rest.startswith(":")):
+                fail("channel", f"{text!r}: an IPv6 group with a port is written [group]:port")
+            port_text = rest[1:] if rest else None
+        elif text.count(":") == 1:  # IPv4:port
+            host, _, port_text = text.partition(":")
+        else:
+            port_text = None
+        if port_text is not None:
+            if not port_text.isdigit() or not 1 <= int(port_text) <= 65535:
+                fail("channel", f"{text!r}: the port must be a number from 1 to 65535")
+            port = int(port_text)
+        try:
+            group = ipaddress.ip_address(host)
+        except ValueError:
+            fail("channel", f"{text!r} is not an IPv4 or IPv6 address (udp_multicast needs a multicast group)")
+        if not group.is_multicast:
+            fail("channel", f"{host} is not a multicast address (IPv4 224.0.0.0/4, IPv6 ff00::/8)")
+        return str(group), port
 
 
 @dataclass(frozen=True, kw_only=True)

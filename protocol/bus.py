@@ -1,8 +1,9 @@
 """Open the CAN bus named by the configuration (python-can; never its hidden global config).
 
-python-can's :class:`can.BusABC` is the transport abstraction and its ``virtual`` bus the
-in-process fake; this module only turns a :class:`config.BusConfig` into an open bus, and a
-missing SocketCAN into one line that says how to get it.
+python-can's :class:`can.BusABC` is the transport abstraction, its ``virtual`` bus the
+in-process fake and its ``udp_multicast`` bus CAN between processes or hosts without CAN
+hardware; this module only turns a :class:`config.BusConfig` into an open bus, and a missing
+SocketCAN (or multicast) into one line that says how to get it.
 """
 
 from __future__ import annotations
@@ -10,6 +11,8 @@ from __future__ import annotations
 import errno
 import queue
 import socket
+import time
+from collections import Counter, deque
 from pathlib import Path
 from typing import Any
 
@@ -96,6 +99,88 @@ def virtual_bus(channel: str, **kwargs: Any) -> InProcessBus:
     return InProcessBus(channel=channel, **kwargs)
 
 
+#: own frames a :class:`UdpBus` remembers until their echo comes back (over a second of the nodes' sends)
+ECHO_WINDOW = 1024
+
+
+def _frame_key(msg: can.Message) -> tuple[int, bool, bool, bytes]:
+    return msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, bytes(msg.data)
+
+
+class UdpBus(can.BusABC):
+    """python-can's UDP multicast bus (classic frames) with SocketCAN's semantics for our own
+    frames and for garbage.
+
+    Multicast loops every datagram back to its sender, so python-can's bus receives its own
+    frames whatever ``receive_own_messages`` says. Unless asked for them, this drops the echo of
+    each frame it sent: a received frame equal to one it sent whose echo has not come yet is that
+    echo (the newest :data:`ECHO_WINDOW` sent are remembered, so an echo that never comes is
+    forgotten). Another sender's frame with the very bytes of one of ours still waiting for its
+    echo would be taken for it; on our protocol that is a frame on our ID with our counter and
+    CRC, which only a fault sends. A datagram on the group that is not a packed CAN frame (another
+    program on the same group and port) is counted in :attr:`undecodable` and skipped, not
+    raised from ``recv``; the socket's own errors are raised as python-can raises them.
+    """
+
+    def __init__(self, group: str, port: int, *, receive_own_messages: bool = False) -> None:
+        from can.interfaces.udp_multicast import UdpMulticastBus
+
+        self.inner = UdpMulticastBus(channel=group, port=port, fd=False)
+        super().__init__(channel=f"{group}:{port}")
+        self.channel_info = f"UDP multicast {group} port {port}"
+        self.receive_own_messages = receive_own_messages
+        self._sent: Counter[tuple[int, bool, bool, bytes]] = Counter()
+        self._order: deque[tuple[int, bool, bool, bytes]] = deque()
+        self.undecodable = 0
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.inner.send(msg, timeout)
+        if self.receive_own_messages:
+            return
+        key = _frame_key(msg)
+        self._sent[key] += 1
+        self._order.append(key)
+        if len(self._order) > ECHO_WINDOW:
+            self._forget(self._order.popleft())
+
+    def _forget(self, key: tuple[int, bool, bool, bytes]) -> None:
+        self._sent[key] -= 1
+        if not self._sent[key]:
+            del self._sent[key]
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        """The next frame that is not our own echo nor garbage, within ``timeout``: what is
+        skipped never ends the wait early (a poll with timeout 0 reads on while datagrams are
+        queued; the controller's drain takes an empty poll for an empty bus)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            left = None if deadline is None else max(0.0, deadline - time.monotonic())
+            try:
+                msg, filtered = self.inner._recv_internal(left)
+            except can.CanOperationError as exc:
+                if exc.__cause__ is None or isinstance(exc.__cause__, OSError):
+                    raise  # the socket's error, not a datagram's
+                self.undecodable += 1  # a datagram that does not unpack to a frame
+                continue
+            if msg is None:
+                return None, False
+            key = _frame_key(msg)
+            if key not in self._sent:
+                return msg, filtered
+            self._forget(key)  # our own frame's echo
+            if self._order[0] == key:
+                self._order.popleft()
+            else:
+                self._order.remove(key)
+
+    def fileno(self) -> int:
+        return self.inner.fileno()
+
+    def shutdown(self) -> None:
+        super().shutdown()
+        self.inner.shutdown()
+
+
 def socketcan_problem(channel: str, sys_class_net: Path = Path("/sys/class/net")) -> str | None:
     """Why SocketCAN ``channel`` cannot be used here, or None when it looks usable."""
     family = getattr(socket, "AF_CAN", None)
@@ -123,6 +208,15 @@ def open_bus(cfg: BusConfig) -> can.BusABC:
     """Open the bus of ``cfg``; raises :class:`BusUnavailableError` with a one-line reason and fixes."""
     if cfg.interface == "virtual":
         return virtual_bus(cfg.channel, receive_own_messages=cfg.receive_own_messages)
+    if cfg.interface == "udp_multicast":
+        group, port = cfg.udp_group()
+        try:
+            return UdpBus(group, port, receive_own_messages=cfg.receive_own_messages)
+        except (OSError, can.CanError) as exc:
+            raise BusUnavailableError(
+                f"cannot join the UDP multicast group {group} port {port}: {exc}; without a network, "
+                "a multicast route on the loopback interface gives one: `sudo ip route add 224.0.0.0/4 dev lo`"
+            ) from None
     problem = socketcan_problem(cfg.channel)
     if problem is not None:
         raise BusUnavailableError(f"cannot open socketcan channel {cfg.channel!r}: {problem}; {_FIXES}")

@@ -1,8 +1,9 @@
-"""Shared test set-up: Hypothesis profiles, the vcan0 gate, and a check that no test leaves a bus open."""
+"""Shared test set-up: Hypothesis profiles, the vcan0 and UDP multicast gates, and a check that no test leaves a bus open."""
 
 from __future__ import annotations
 
 import os
+import socket
 from pathlib import Path
 
 import can.interfaces.virtual as virtual
@@ -40,6 +41,46 @@ def vcan0() -> str:
             pytest.fail(message + " (CI=true requires them)", pytrace=False)
         pytest.skip(message)
     return "vcan0"
+
+
+UDP_GROUP = "239.74.163.2"  # python-can's default IPv4 group; each test its own port
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("", 0))
+        return s.getsockname()[1]
+
+
+def udp_multicast_problem(channel: str) -> str | None:
+    """Why two buses on the UDP multicast ``channel`` do not hear each other here, or None."""
+    import can
+
+    from protocol.bus import UdpBus
+
+    group, _, port = channel.partition(":")
+    try:
+        with UdpBus(group, int(port)) as a, UdpBus(group, int(port)) as b:
+            a.send(can.Message(arbitration_id=0x7FF, data=b"probe", is_extended_id=False))
+            if b.recv(timeout=2.0) is None:
+                return f"a frame sent to {channel} did not come back over the loopback"
+    except (OSError, can.CanError) as exc:
+        return f"cannot join the UDP multicast group {channel}: {exc} (sudo ip route add 224.0.0.0/4 dev lo)"
+    return None
+
+
+@pytest.fixture
+def udp_multicast() -> str:
+    """A UDP multicast channel (group:port, a free port of its own) that works on this machine;
+    skips loudly (fails under CI=true) without multicast."""
+    channel = f"{UDP_GROUP}:{_free_udp_port()}"
+    problem = udp_multicast_problem(channel)
+    if problem:
+        message = f"UDP MULTICAST TESTS NOT RUN: {problem}"
+        if IN_CI:
+            pytest.fail(message + " (CI=true requires them)", pytrace=False)
+        pytest.skip(message)
+    return channel
 
 
 @pytest.fixture(autouse=True)

@@ -45,6 +45,64 @@ def test_in_process_bus_delivers_as_python_cans_virtual_bus():
         assert a.recv(timeout=1).arbitration_id == 0x8
 
 
+def _udp(channel: str, **kwargs) -> can.BusABC:
+    return open_bus(BusConfig(interface="udp_multicast", channel=channel, bitrate_bit_s=1_000_000, **kwargs))
+
+
+def _frame(can_id: int, data: bytes = b"") -> can.Message:
+    return can.Message(arbitration_id=can_id, data=data, is_extended_id=False)
+
+
+def test_udp_multicast_carries_frames_between_buses_without_their_own_echo(udp_multicast):
+    """As on SocketCAN: a sender does not receive its own frames (multicast loops every datagram
+    back; the bus drops the echoes), unless receive_own_messages asks for them; every other bus
+    on the group gets every frame, in order."""
+    with _udp(udp_multicast) as a, _udp(udp_multicast) as b, _udp(udp_multicast, receive_own_messages=True) as own:
+        a.send(_frame(0x80, b"\x01"))
+        a.send(_frame(0x80, b"\x01"))  # the same bytes twice: two echoes to drop, two frames for the others
+        b.send(_frame(0x81, b"\x02"))
+        own.send(_frame(0x82))
+        got = {name: [] for name in "ab"}
+        for name, bus in (("a", a), ("b", b)):
+            while (m := bus.recv(timeout=0.5)) is not None:
+                got[name].append((m.arbitration_id, bytes(m.data)))
+        assert got["a"] == [(0x81, b"\x02"), (0x82, b"")]
+        assert got["b"] == [(0x80, b"\x01"), (0x80, b"\x01"), (0x82, b"")]
+        heard = []
+        while (m := own.recv(timeout=0.5)) is not None:
+            heard.append(m.arbitration_id)
+        assert heard == [0x80, 0x80, 0x81, 0x82]
+
+
+def test_udp_multicast_poll_reads_past_echoes_and_counts_garbage(udp_multicast):
+    """A poll (timeout 0) skips echoes and foreign datagrams to the frame behind them: the
+    controller's drain takes an empty poll for an empty bus (a poll that returned nothing at an
+    echo left the nodes' frames unread: ENCODER_STUCK in a real-time walk). A datagram that is
+    not a packed frame is counted, never raised."""
+    group, _, port = udp_multicast.partition(":")
+    with _udp(udp_multicast) as a, _udp(udp_multicast) as b, _udp(udp_multicast) as witness, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as raw:
+
+        def delivered(last_id: int) -> None:
+            """Until the witness has the last datagram sent (multicast on the loopback reaches
+            every socket of the group together)."""
+            while (m := witness.recv(timeout=1.0)) is not None and m.arbitration_id != last_id:
+                pass
+            assert m is not None, f"0x{last_id:X} did not come"
+
+        a.send(_frame(0x10))
+        raw.sendto(b"not a frame", (group, int(port)))
+        b.send(_frame(0x11))
+        delivered(0x11)
+        msg = a.recv(timeout=0)  # behind its own echo and the garbage
+        assert msg is not None and msg.arbitration_id == 0x11
+        assert b.recv(timeout=0).arbitration_id == 0x10 and b.recv(timeout=0) is None
+        a.send(_frame(0x12))
+        delivered(0x12)
+        assert a.recv(timeout=0) is None  # only its echo was there
+        assert a.undecodable == 1 and b.undecodable == 1 and witness.undecodable == 1
+
+
 def test_missing_socketcan_gives_one_line_with_fixes(monkeypatch):
     monkeypatch.setattr("protocol.bus.socketcan_problem", lambda channel: "this kernel has no SocketCAN")
     cfg = BusConfig(interface="socketcan", channel="vcan0", bitrate_bit_s=500_000)

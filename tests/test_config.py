@@ -162,7 +162,7 @@ INVALID = [
     ("section-empty", Config, _sub(VALID, "protocol:\n  max_delta_counter: 2", "protocol:"),
      "protocol", "expected a mapping (section), got null"),
     ("bad-choice", Config, _sub(VALID, "virtual", "pcan"), "bus.interface",
-     "'pcan' is not one of: socketcan, virtual"),
+     "'pcan' is not one of: socketcan, virtual, udp_multicast"),
     ("bad-channel-name", Config, _sub(_sub(VALID, "virtual", "socketcan"), "aider", "can 0"),
      "bus.channel", "not a valid Linux interface name"),
     ("channel-too-long", Config, _sub(_sub(VALID, "virtual", "socketcan"), "aider",
@@ -432,6 +432,18 @@ def test_overrides():
     assert whole_section.protocol.max_delta_counter == 5
 
 
+@pytest.mark.parametrize(("channel", "group"), [
+    ("239.74.163.2", ("239.74.163.2", 43113)),
+    ("239.74.163.2:43114", ("239.74.163.2", 43114)),
+    ("ff15:7079:7468:6f6e:6465:6d6f:6d63:6173", ("ff15:7079:7468:6f6e:6465:6d6f:6d63:6173", 43113)),
+    ("[FF15::1]:9", ("ff15::1", 9)),
+    ("[ff15::1]", ("ff15::1", 43113)),
+])
+def test_a_udp_multicast_channel_names_its_group_and_port(channel, group):
+    cfg = with_overrides(load_config(default_config_path()), {"bus.interface": "udp_multicast", "bus.channel": channel})
+    assert cfg.bus.udp_group() == group
+
+
 def test_overrides_of_entries_and_tuples():
     root = parse_as(Root, ROOT_VALID)
     changed = with_overrides(
@@ -451,7 +463,7 @@ def test_overrides_of_entries_and_tuples():
         ({"bus.bitrate_bit_s": "fast"},
          "<overrides>: bus.bitrate_bit_s: expected an integer, got 'fast'"),
         ({"bus.interface": "pcan"},
-         "<overrides>: bus.interface: 'pcan' is not one of: socketcan, virtual"),
+         "<overrides>: bus.interface: 'pcan' is not one of: socketcan, virtual, udp_multicast"),
         ({"bus.chanel": "vcan0"}, "<overrides>: bus.chanel: unknown key; expected one of: "
          "bitrate_bit_s, channel, interface, receive_own_messages (did you mean 'channel'?)"),
         ({"bsu.channel": "vcan0"}, "<overrides>: bsu: unknown key; expected one of: "
@@ -459,6 +471,14 @@ def test_overrides_of_entries_and_tuples():
         ({"bus.interface": "socketcan", "bus.channel": "my bus"}, "<overrides>: bus.channel: "
          "'my bus' is not a valid Linux interface name for socketcan "
          "(1 to 15 characters from A-Z a-z 0-9 _ . -)"),
+        ({"bus.interface": "udp_multicast", "bus.channel": "vcan0"}, "<overrides>: bus.channel: 'vcan0' is not "
+         "an IPv4 or IPv6 address (udp_multicast needs a multicast group)"),
+        ({"bus.interface": "udp_multicast", "bus.channel": "192.168.1.2"}, "<overrides>: bus.channel: 192.168.1.2 is "
+         "not a multicast address (IPv4 224.0.0.0/4, IPv6 ff00::/8)"),
+        ({"bus.interface": "udp_multicast", "bus.channel": "239.1.2.3:70000"}, "<overrides>: bus.channel: "
+         "'239.1.2.3:70000': the port must be a number from 1 to 65535"),
+        ({"bus.interface": "udp_multicast", "bus.channel": "[ff15::1]43113"}, "<overrides>: bus.channel: "
+         "'[ff15::1]43113': an IPv6 group with a port is written [group]:port"),
         ({"bus.channel.name": "x"},
          "<overrides>: bus.channel.name: cannot be set: bus.channel is a value, not a section"),
         ({"protocol": 3}, "<overrides>: protocol: expected a mapping (section), got 3"),

@@ -13,8 +13,8 @@ from config import Config, ConfigError, default_config_path, load_config, with_o
 
 def add_config_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="FILE", help="YAML configuration (default: the packaged config/default.yaml)")
-    parser.add_argument("--bus", choices=("socketcan", "virtual"), help="override bus.interface")
-    parser.add_argument("--channel", help="override bus.channel (vcan0, can0, or a virtual bus name)")
+    parser.add_argument("--bus", choices=("socketcan", "virtual", "udp_multicast"), help="override bus.interface")
+    parser.add_argument("--channel", help="override bus.channel (vcan0, can0, a virtual bus name, or a multicast group[:port])")
 
 
 def load_cli_config(args: argparse.Namespace, *, needs: tuple[str, ...] = ()) -> Config:

@@ -23,8 +23,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
             "The main controller (gait FSM, DMP swing, CoM compensation, optionally learning) walks the "
             "simulated HHEA through the four emulated node boards, every value a CAN frame, in lock-step "
             "(deterministic for a seed). By default everything runs in this process on the in-process virtual "
-            "bus; with --bus socketcan the node boards run as a second process (aider-exo nodes) on that "
-            "channel. A one-line status while it walks (on stderr), a summary at the end: steps and cycles "
+            "bus; with --bus socketcan (or udp_multicast) the node boards run as a second process (aider-exo "
+            "nodes) on that channel. A one-line status while it walks (on stderr), a summary at the end: steps and cycles "
             "walked, falls, mean stick force, and the error of the estimated X_CoM/X_SP against the "
             "simulation's ground truth."
         ),
@@ -95,9 +95,9 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_cli_config(args)
     if cfg.controller is None or cfg.sim is None or cfg.nodes is None:
         raise ConfigError("walking in simulation needs the controller, sim and nodes sections", key="controller")
-    socketcan = cfg.bus.interface == "socketcan"
-    if socketcan and args.render:
-        raise ConfigError("--render needs the simulation in this process (no --bus socketcan)", key="bus.interface")
+    two_processes = cfg.bus.interface != "virtual"
+    if two_processes and args.render:
+        raise ConfigError(f"--render needs the simulation in this process (not --bus {cfg.bus.interface})", key="bus.interface")
     # Exploration seeded from --seed (its own stream): a learning walk is as repeatable as any other.
     rng = np.random.default_rng(np.random.SeedSequence([args.seed, 1]))
     policy, saver = step_policy(cfg.controller, fixed_m=args.fixed_step, learn=args.learn, patient=args.patient,
@@ -115,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     nodes_report: dict[str, Any] | None = None
     try:
         telemetry = TelemetryLog(args.log) if args.log else None  # in the try: the saver is closed if it fails
-        if socketcan:
+        if two_processes:
             outcome, nodes_report = _walk_two_processes(args, cfg, policy, status, telemetry)
         else:
             def on_tick(result: Any, core: Any, host: Any) -> None:
@@ -133,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
             saver.close()
     summary = outcome.summary()
     summary["cycles_asked"] = args.steps
-    summary["bus"] = f"{cfg.bus.interface}:{cfg.bus.channel}" if socketcan else "virtual (in-process)"
+    summary["bus"] = f"{cfg.bus.interface}:{cfg.bus.channel}" if two_processes else "virtual (in-process)"
     summary["telemetry"] = log_report
     if saver is not None:
         summary["patient_file"] = {"path": str(saver.path), "writes": saver.writes, "errors": saver.errors}
@@ -173,7 +173,7 @@ def _summary_text(s: dict[str, Any]) -> str:
 
 
 def _walk_two_processes(args: argparse.Namespace, cfg: Any, policy: Any, status: StatusLine, telemetry: Any):
-    """The node boards as ``aider-exo nodes`` in a second process on the same SocketCAN channel."""
+    """The node boards as ``aider-exo nodes`` in a second process on the same bus (SocketCAN or UDP multicast)."""
     from config.loader import AiderError
     from protocol.bus import open_bus
     from tools.pipeline import walk_controller
@@ -181,7 +181,7 @@ def _walk_two_processes(args: argparse.Namespace, cfg: Any, policy: Any, status:
     exe = str(Path(sys.executable).with_name("aider-exo"))
     with tempfile.TemporaryDirectory(prefix="aider-walk-") as tmp:
         truth_path = Path(tmp) / "truth.jsonl"
-        cmd = [exe, "nodes", "--bus", "socketcan", "--channel", cfg.bus.channel, "--lockstep", "--mode", args.mode,
+        cmd = [exe, "nodes", "--bus", cfg.bus.interface, "--channel", cfg.bus.channel, "--lockstep", "--mode", args.mode,
                "--seed", str(args.seed), "--truth", str(truth_path), "--json", "--quiet"]
         if args.config:
             cmd[2:2] = ["--config", args.config]
