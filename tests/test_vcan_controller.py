@@ -7,8 +7,8 @@
   and every swing the controller reports.
 * The same in real time (no ``--lockstep``), 5 gait cycles: both processes on their own 20 ms
   clocks, the controller's SYNC sampling the nodes' newest state.
-* ``aider-exo walk --bus socketcan``: the walk command starts the nodes as its second process
-  itself; its summary (cycles, no fall, X_CoM/X_SP error from the join with the nodes' ground
+* ``aider-exo walk --bus socketcan`` (and ``udp_multicast``): the walk command starts the nodes
+  as its second process itself; its summary (cycles, no fall, X_CoM/X_SP error from the join with the nodes' ground
   truth) and candump's capture of it.
 
 The guest's one CPU runs both processes and candump. Real time fits because tools/vcan-run
@@ -296,18 +296,19 @@ def test_controller_walks_five_gait_cycles_in_real_time_as_two_processes(interfa
     _check_walk(summary, final, RT_CYCLES, {"NONE", "COMMAND_TIMEOUT"})
 
 
-@pytest.mark.vcan
-def test_walk_command_starts_the_nodes_process_over_vcan0(vcan0, tmp_path):
-    log = tmp_path / "candump.log"
+@pytest.mark.parametrize("interface", [pytest.param("socketcan", marks=pytest.mark.vcan), "udp_multicast"])
+def test_walk_command_starts_the_nodes_process(interface, request, tmp_path):
+    channel = request.getfixturevalue("vcan0" if interface == "socketcan" else "udp_multicast")
+    log = tmp_path / "capture.log"
     steps = 2
-    with candump(vcan0, log):
+    with _recording(interface, channel, log):
         walk = subprocess.run(
-            [AIDER, "walk", "--bus", "socketcan", "--channel", vcan0, "--steps", str(steps), "--json", "--quiet"],
+            [AIDER, "walk", "--bus", interface, "--channel", channel, "--steps", str(steps), "--json", "--quiet"],
             check=False, cwd=ROOT, capture_output=True, text=True, timeout=400,  # a hang guard only (21-92 s in the sandbox)
         )
     assert walk.returncode == 0, walk.stderr
     s = json.loads(walk.stdout)
-    assert s["bus"] == f"socketcan:{vcan0}"
+    assert s["bus"] == f"{interface}:{channel}"
     assert s["cycles_completed"] == steps and s["steps_completed"] == 2 * steps, (s["fault"], s["fall_reason"])
     assert s["falls"] == 0 and s["fall_reason"] is None and s["fault"] is None and not s["stalled"]
     assert s["nodes"]["fall"] is None
