@@ -197,16 +197,21 @@ def test_falls_analysis_splits_the_ends_by_length_ratio_and_previous_step():
         _walk_result(2, [(0.13, 0.42, True), (0.15, 0.48, True)], False),
         _walk_result(3, [(0.17, 0.44, True)], True, "stalled"),  # ended between swings
     ]
+    results.append(_walk_result(4, [], True, "hip height 0.50 m below 0.55"))  # ended before its first swing
     s = analyse(results)
-    assert (s["walks"], s["walks_ended_early"], s["steps"], s["steps_ended"], s["walks_ended_between_swings"]) == (3, 2, 6, 1, 1)
-    assert s["ends"] == {"hip height 0.52 m below 0.55": 1}
+    assert (s["walks"], s["walks_ended_early"], s["steps"], s["steps_ended"]) == (4, 3, 6, 1)
+    assert (s["walks_ended_between_swings"], s["walks_ended_before_a_swing"]) == (1, 1)
+    assert s["ends"] == {"hip height 0.52 m below 0.55": 1, "stalled": 1}  # the one before a swing has no step
     short = s["by_length"][0]  # 0.10 and 0.11: the 0.11 m step ended its walk
     assert (short["steps"], short["ended"], short["percent"]) == (2, 1, 50.0)
+    longest = s["by_length"][-1]  # 0.17 (ended in the double support after it) and 0.18
+    assert (longest["steps"], longest["ended"], longest["ended_after"], longest["percent_with_after"]) == (2, 0, 1, 50.0)
     assert short["below_median"]["ended"] == 0 and short["at_or_above_median"]["ended"] == 1
     after_long = s["by_previous_length"][-1]  # the step after the 0.18 m one ended the walk
     assert (after_long["steps"], after_long["ended"]) == (1, 1)
     rows = csv_rows(results)
     assert [r["previous_m"] for r in rows[:3]] == [None, 0.10, 0.18] and [r["ended"] for r in rows[:3]] == [False, False, True]
+    assert [r["ended_after"] for r in rows] == [False] * 5 + [True] and rows[-1]["end"] == "stalled"
 
 
 def test_falls_experiment_walks_random_lengths_through_the_pipeline(tmp_path):

@@ -4,9 +4,10 @@ The paper's compensation ``g = g_init + alpha (Xhat_CoM - X_CoM/X_SP)`` can only
 CoM sits in the support at a swing's start (X_CoM/X_SP) tells which step is safe. This experiment
 asks the model directly: walks of ``N`` gait cycles whose steps are drawn uniformly from
 ``[min, max]`` (no compensation; each walk its own patient and length seed), and for every step
-whose swing started, whether the walk ended in it (a fall, a fault or a HOLD before it landed).
-The end rate is then split by the step's own length, by X_CoM/X_SP at its start (below or above
-the median of its length band) and by the length of the step before it.
+whose swing started, whether the walk ended in it (a fall, a fault or a HOLD before it landed)
+or in the double support after its landing (before the next swing). The end rate is then split
+by the step's own length, by X_CoM/X_SP at its start (below or above the median of its length
+band) and by the length of the step before it.
 """
 
 from __future__ import annotations
@@ -62,24 +63,29 @@ class Swing:
     x_ratio: float  # X_CoM/X_SP at the swing's start
     previous_m: float | None  # the step before it (None: the first)
     ended: bool  # the walk ended in this step, before it landed
-    end: str  # how the walk ended (for the ended step)
+    ended_after: bool  # the walk ended in the double support after this step landed
+    end: str  # how the walk ended (for the step it ended in or after)
 
 
 def swings(results: list[dict[str, Any]]) -> list[Swing]:
     out = []
     for r in results:
         rows = r["swings"]
+        # A walk that ended with every swing landed ended in double support: after its last step.
+        after_last = bool(r["fell"] and rows and rows[-1][2])
         for i, (length, ratio, landed) in enumerate(rows):
             ended = not landed and r["fell"]
-            out.append(Swing(r["job"]["seed"], i, length, ratio, rows[i - 1][0] if i else None, ended,
-                             r["end"] if ended else ""))
+            after = after_last and i == len(rows) - 1
+            out.append(Swing(r["job"]["seed"], i, length, ratio, rows[i - 1][0] if i else None, ended, after,
+                             r["end"] if ended or after else ""))
     return out
 
 
 def _rate(rows: list[Swing]) -> dict[str, Any]:
     n = len(rows)
-    ended = sum(s.ended for s in rows)
-    return {"steps": n, "ended": ended, "percent": round(100.0 * ended / n, 2) if n else None}
+    ended, after = sum(s.ended for s in rows), sum(s.ended_after for s in rows)
+    return {"steps": n, "ended": ended, "percent": round(100.0 * ended / n, 2) if n else None, "ended_after": after,
+            "percent_with_after": round(100.0 * (ended + after) / n, 2) if n else None}
 
 
 def _band(lo: float, hi: float) -> str:
@@ -88,7 +94,8 @@ def _band(lo: float, hi: float) -> str:
 
 def analyse(results: list[dict[str, Any]]) -> dict[str, Any]:
     """The end rate per step by its length, by X_CoM/X_SP within its length band, and by the
-    length of the step before it."""
+    length of the step before it; each rate of the ends in the steps' swings, and with the ends
+    in the double support after them."""
     rows = swings(results)
     by_length, by_previous = [], []
     for lo, hi in BANDS:
@@ -104,39 +111,47 @@ def analyse(results: list[dict[str, Any]]) -> dict[str, Any]:
         by_length.append(entry)
         by_previous.append({"band_m": _band(lo, hi),
                             **_rate([s for s in rows if s.previous_m is not None and lo <= s.previous_m < hi])})
-    ends = dict(Counter(s.end for s in rows if s.ended))
+    ends = dict(Counter(s.end for s in rows if s.ended or s.ended_after))
+    after = sum(s.ended_after for s in rows)
     return {
         "walks": len(results), "walks_ended_early": sum(r["fell"] for r in results),
         "steps": len(rows), "steps_ended": sum(s.ended for s in rows),
-        # a walk can also end between swings (in double support): it has no ended step
-        "walks_ended_between_swings": sum(r["fell"] for r in results) - sum(s.ended for s in rows),
+        "walks_ended_between_swings": after,  # in the double support after a landed step
+        # in double support before the first swing: no step to blame
+        "walks_ended_before_a_swing": sum(r["fell"] for r in results) - sum(s.ended for s in rows) - after,
         "ends": ends, "by_length": by_length, "by_previous_length": by_previous,
     }
 
 
 def csv_rows(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return [{"walk_seed": s.walk_seed, "step": s.index, "length_m": s.length_m, "x_ratio": s.x_ratio,
-             "previous_m": s.previous_m, "ended": s.ended, "end": s.end} for s in swings(results)]
+             "previous_m": s.previous_m, "ended": s.ended, "ended_after": s.ended_after, "end": s.end}
+            for s in swings(results)]
 
 
 def figure(results: list[dict[str, Any]], s: dict[str, Any], path, canvas, save) -> None:
-    """(a) each step's length against X_CoM/X_SP at its start, the steps a walk ended in marked;
-    (b) the end rate by the step's own length and by the length of the step before it (``s``:
-    :func:`analyse` of ``results``)."""
+    """(a) each step's length against X_CoM/X_SP at its start, the steps a walk ended in (or in
+    the double support after) marked; (b) the end rate by the step's own length, with the ends
+    after it, and by the length of the step before it (``s``: :func:`analyse` of ``results``)."""
     rows = swings(results)
     fig, ax = canvas(1, 2, (11, 4.5))
     a, b = ax[0]
-    ok = [s for s in rows if not s.ended and np.isfinite(s.x_ratio)]
+    ok = [s for s in rows if not s.ended and not s.ended_after and np.isfinite(s.x_ratio)]
     bad = [s for s in rows if s.ended and np.isfinite(s.x_ratio)]
-    a.scatter([s.length_m for s in ok], [s.x_ratio for s in ok], s=8, c="tab:gray", alpha=0.5, label="landed (or walked on)")
-    a.scatter([s.length_m for s in bad], [s.x_ratio for s in bad], s=30, c="tab:red", marker="x", label="the walk ended in it")
+    after = [s for s in rows if s.ended_after and np.isfinite(s.x_ratio)]
+    a.scatter([s.length_m for s in ok], [s.x_ratio for s in ok], s=8, c="tab:gray", alpha=0.5, label="landed, walked on")
+    a.scatter([s.length_m for s in bad], [s.x_ratio for s in bad], s=30, c="tab:red", marker="x", label="the walk ended in its swing")
+    a.scatter([s.length_m for s in after], [s.x_ratio for s in after], s=30, c="tab:orange", marker="+",
+              label="ended in the double support after it")
     a.set(xlabel="step length (m)", ylabel="X_CoM/X_SP at the swing's start", title="(a) every step of the random-length walks")
     a.legend(loc="best", fontsize=8)
     x = np.arange(len(BANDS))
     own = [e["percent"] or 0.0 for e in s["by_length"]]
+    with_after = [e["percent_with_after"] or 0.0 for e in s["by_length"]]
     prev = [e["percent"] or 0.0 for e in s["by_previous_length"]]
-    b.bar(x - 0.2, own, 0.4, label="by the step's own length")
-    b.bar(x + 0.2, prev, 0.4, label="by the length of the step before it")
+    b.bar(x - 0.27, own, 0.27, label="in its swing, by its length")
+    b.bar(x, with_after, 0.27, label="in its swing or the double support after")
+    b.bar(x + 0.27, prev, 0.27, label="in its swing, by the length of the step before")
     b.set_xticks(x, [e["band_m"] for e in s["by_length"]])
     b.set(xlabel="length band (m)", ylabel="steps the walk ended in (%)", title="(b) where walks end")
     b.legend(loc="best", fontsize=8)
@@ -145,17 +160,20 @@ def figure(results: list[dict[str, Any]], s: dict[str, Any], path, canvas, save)
 
 def report_lines(s: dict[str, Any]) -> list[str]:
     lines = [
-        f"{s['walks']} walks, {s['walks_ended_early']} ended early; {s['steps']} swings, {s['steps_ended']} of them "
-        f"ended the walk ({s['walks_ended_between_swings']} walks ended between swings)",
+        f"{s['walks']} walks, {s['walks_ended_early']} ended early: {s['steps_ended']} in a swing, "
+        f"{s['walks_ended_between_swings']} in the double support after a step, {s['walks_ended_before_a_swing']} "
+        f"before the first swing; {s['steps']} swings",
         "",
-        "| length band m | swings | ended % | X_CoM/X_SP median (sd) | ended % below / at or above the median | ended % after a step of this band |",
-        "|---|---|---|---|---|---|",
+        "| length band m | swings | ended % in the swing | with the double support after | X_CoM/X_SP median (sd) "
+        "| ended % (with after) below / at or above the median | ended % in the swing after a step of this band |",
+        "|---|---|---|---|---|---|---|",
     ]
     for own, prev in zip(s["by_length"], s["by_previous_length"]):
-        lo, hi = own.get("below_median", {}).get("percent"), own.get("at_or_above_median", {}).get("percent")
+        lo, hi = own.get("below_median", {}), own.get("at_or_above_median", {})
         med = f"{own['x_ratio_median']:.3f} ({own['x_ratio_std']:.3f})" if "x_ratio_median" in own else "-"
-        lines.append(f"| {own['band_m']} | {own['steps']} | {_p(own['percent'])} | {med} | {_p(lo)} / {_p(hi)} | "
-                     f"{_p(prev['percent'])} ({prev['steps']}) |")
+        lines.append(f"| {own['band_m']} | {own['steps']} | {_p(own['percent'])} | {_p(own['percent_with_after'])} | {med} "
+                     f"| {_p(lo.get('percent'))} ({_p(lo.get('percent_with_after'))}) / {_p(hi.get('percent'))} "
+                     f"({_p(hi.get('percent_with_after'))}) | {_p(prev['percent'])} ({prev['steps']}) |")
     return lines
 
 
