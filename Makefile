@@ -37,7 +37,7 @@ demo: venv system-deps
 	$(AIDER) walk --steps 10 --render build/walk
 
 test: venv system-deps
-	$(PY) -m pytest -m "not vcan"
+	$(PY) -m pytest -m "not vcan" -n auto
 	tools/vcan-run -- $(PY) -m pytest -m vcan -p no:cacheprovider
 
 # Regenerate the protocol documentation from the DBC (a test fails when it is stale).
