@@ -11,7 +11,6 @@ from __future__ import annotations
 import errno
 import queue
 import socket
-import time
 from collections import Counter, deque
 from pathlib import Path
 from typing import Any
@@ -21,7 +20,7 @@ from can.bus import LOG as _LOG
 from can.interfaces.virtual import VirtualBus, channels_lock
 
 from config import BusConfig
-from protocol.clock import epoch_s
+from protocol.clock import MonotonicClock, epoch_s
 from protocol.errors import BusUnavailableError
 
 _FIXES = (
@@ -132,6 +131,7 @@ class UdpBus(can.BusABC):
         self._sent: Counter[tuple[int, bool, bool, bytes]] = Counter()
         self._order: deque[tuple[int, bool, bool, bytes]] = deque()
         self.undecodable = 0
+        self._clock = MonotonicClock()
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self.inner.send(msg, timeout)
@@ -152,9 +152,10 @@ class UdpBus(can.BusABC):
         """The next frame that is not our own echo nor garbage, within ``timeout``: what is
         skipped never ends the wait early (a poll with timeout 0 reads on while datagrams are
         queued; the controller's drain takes an empty poll for an empty bus)."""
-        deadline = None if timeout is None else time.monotonic() + timeout
+        clock = self._clock
+        deadline = None if timeout is None else clock.now_ns() + int(timeout * 1e9)
         while True:
-            left = None if deadline is None else max(0.0, deadline - time.monotonic())
+            left = None if deadline is None else max(0, deadline - clock.now_ns()) / 1e9
             try:
                 msg, filtered = self.inner._recv_internal(left)
             except can.CanOperationError as exc:

@@ -356,6 +356,10 @@ def test_uml_signal_kills_guest_and_cleans_scratch(tmp_path, signum, expected):
         [str(SCRIPT), "sh", "-c", "echo ready; sleep 30"],
         env=env_with(VCAN_RUN_FORCE="uml", TMPDIR=str(tmpdir)),
         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        # As from a terminal: pytest started as a background job of a script (`make test &`)
+        # inherits SIGINT ignored, and bash can neither trap nor reset a signal ignored when it
+        # started (the SIGINT case then timed out here).
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         assert read_line(p, time.monotonic() + TIMEOUT) == b"ready\n"
