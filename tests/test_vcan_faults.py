@@ -229,8 +229,11 @@ def _why(ctl: subprocess.Popen) -> list[str]:
 @contextmanager
 def _mid_swing(vcan0: str, tmp: Path, name: str, nodes_extra: tuple[str, ...] = ()):
     """candump recording ``<tmp>/<name>-<attempt>.log``, ``aider-exo nodes`` booted and
-    ``aider-exo controller --walk``, both in real time, until 0.3 s into the second swing (of 1.2 s);
-    yields (nodes, controller, tail of the capture, its path) there; candump stops at the end of
+    ``aider-exo controller --walk``, both in real time, until 0.6 s into the second swing (of 1.2 s);
+    yields (nodes, controller, tail of the capture, its path) there (at 0.3 s the patient, held by
+    the quick stop, sometimes stood off its sticks, 5-35 N, and I4 rightly refused the reset of
+    the F22 test: reproduced on the host, killed 2-8 ticks into a swing; 10-55 ticks in, the sticks
+    carried 80-220 N); candump stops at the end of
     the block, the processes are the caller's (killed here on an error). A walk disrupted before
     that point (in the sandbox a stall of the guest, whose one CPU the busy host shares, makes
     overruns or missing statuses: HOLD or FAULT, as designed; once the walk stalled in double
@@ -246,7 +249,7 @@ def _mid_swing(vcan0: str, tmp: Path, name: str, nodes_extra: tuple[str, ...] = 
                     ctl = _controller(vcan0, "--walk")
                     tail = _Tail(log)
                     _wait(tail, _Swings(2), "the second swing", (nodes, ctl), SECOND_SWING_S, _NotWalking)
-                    _wait(tail, _Count({SYNC_ID}, 15), "0.3 s into the swing", (nodes, ctl))
+                    _wait(tail, _Count({SYNC_ID}, 30), "0.6 s into the swing", (nodes, ctl))
                 except _NotWalking as e:
                     reasons.append(f"attempt {attempt + 1}: {e}: {_why(ctl)}")
                     _reap(nodes, ctl)
@@ -491,7 +494,9 @@ def test_restarted_controller_leaves_fault_only_on_the_operators_reset_and_does_
     decoded, _ = _decode_capture(r["logs"]["reset"])
     print(f"\nF22 with --reset: resets at ticks {s['resets']}, {transitions}, commands {dict(_commands(decoded))}")
     assert s["ticks"] == 150
-    assert [(a, b) for _, a, b, _ in transitions[:2]] == [("INIT", "FAULT"), ("FAULT", "STAND")], transitions
+    sticks = [(d.name, round(d.values[0])) for d in decoded if d.message.family == "STICK"][-4:]  # force first
+    assert [(a, b) for _, a, b, _ in transitions[:2]] == [("INIT", "FAULT"), ("FAULT", "STAND")], (
+        transitions, s["resets"], f"last stick forces {sticks} (I4 resets only with both sticks loaded)")
     assert transitions[0][3].startswith("DRIVE_FAULT(") and transitions[1][3] == "operator reset"
     assert len(s["resets"]) == 2, s["resets"]  # the nodes' FAULT_RESET, then the FSM's reset once they were healthy
     first_reset, fsm_reset = s["resets"]
