@@ -164,6 +164,23 @@ def test_a_walk_that_runs_out_of_time_is_a_stall_not_a_fall():
     assert summary["mean_stick_force_n"] is None and summary["step_length_m"]["mean"] is None
 
 
+def test_a_walk_that_the_controller_holds_ends_there_with_the_cause():
+    """A HOLD is latched until an operator's reset: the walk ends the tick it comes (not after the
+    stall time, which would report it as a stall), and says why."""
+    from tools.experiment.runner import WalkJob, run_walk
+
+    # the left stick reads 0 N from early in the first swing (ticks 241-..., seed 0) on: a slipped crutch (F19)
+    slipped = {"kind": "sensor_value", "node": "LEFT_HIP", "start_tick": 250, "message": "STICK_LEFT", "signal": "force_N", "value": 0.0}
+    cfg = with_overrides(BASE, {"nodes.faults": {"slip": slipped}})
+    outcome = walk(cfg, cycles=2, seed=0, mode="sagittal")
+    assert outcome.final_state == "HOLD" and outcome.hold.startswith("STICK_UNLOADED(left stick")
+    assert not outcome.stalled and not outcome.fell and outcome.fault is None
+    assert len(outcome.landed) == 1 and outcome.ticks == outcome.landed[0].end_tick + 2  # the tick after the landing
+    assert outcome.summary()["hold"] == outcome.hold
+    result = run_walk(cfg, WalkJob(seed=0, cycles=2, fixed_m=0.12))
+    assert result["end"].startswith("hold STICK_UNLOADED(left stick") and result["fell"] and not result["complete"]
+
+
 def test_a_walk_without_a_landing_for_stall_s_is_a_stall():
     outcome = walk(BASE, cycles=1, seed=0, mode="sagittal", stall_s=1.5)
     assert outcome.stalled and not outcome.fell and outcome.landed == []
@@ -222,7 +239,7 @@ def test_the_telemetry_log_has_its_schema_and_the_gait_fields_filled_during_swin
 
 SUMMARY_FIELDS = {
     "mode", "seed", "policy", "theta", "cycles_asked", "cycles_completed", "steps_completed", "falls", "fall_reason",
-    "fault", "stalled", "final_state", "mean_stick_force_n", "mean_arm_torque_nm", "step_length_m", "x_ratio_mae", "x_ratio_samples",
+    "fault", "hold", "stalled", "final_state", "mean_stick_force_n", "mean_arm_torque_nm", "step_length_m", "x_ratio_mae", "x_ratio_samples",
     "sim_time_s", "wall_time_s", "ticks", "receiver", "timing", "steps", "bus", "telemetry",
 }
 

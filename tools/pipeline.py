@@ -46,6 +46,7 @@ class WalkOutcome:
     fell: bool = False
     fall_reason: str | None = None  # the simulation's fall criterion, or the controller's fall detection
     fault: str | None = None  # the cause the controller's FAULT latched on
+    hold: str | None = None  # the cause of the controller's protective stop (HOLD, latched until a reset)
     stalled: bool = False  # the time ran out before the cycles were walked
     final_state: str = ""
     sim_time_s: float = 0.0
@@ -91,6 +92,7 @@ class WalkOutcome:
             "falls": int(self.fell),
             "fall_reason": self.fall_reason,
             "fault": self.fault,
+            "hold": self.hold,
             "stalled": self.stalled,
             "final_state": self.final_state,
             "mean_stick_force_n": _round(self.mean_stick_force_n, 2),
@@ -132,8 +134,8 @@ def drive(
     truth_ratio: Callable[[], float] | None = None, fallen: Callable[[], str | None] | None = None,
     on_tick: TickHook | None = None, stall_s: float = STALL_S,
 ) -> TickResult | None:
-    """Run ``loop`` with walking asked until ``cycles`` gait cycles have landed, a fall, a FAULT,
-    ``max_ticks``, or ``stall_s`` of simulated time without a step landing (both a stall); fills
+    """Run ``loop`` with walking asked until ``cycles`` gait cycles have landed, a fall, a FAULT, a
+    HOLD, ``max_ticks``, or ``stall_s`` of simulated time without a step landing (both a stall); fills
     ``outcome`` (the steps are the core's own list)."""
     core = loop.core
     core.request_walk()
@@ -157,6 +159,11 @@ def drive(
             outcome.fault = core.fsm.transitions[-1].cause
             if outcome.fault.startswith("FALL"):
                 outcome.fell, outcome.fall_reason = True, outcome.fault
+            break
+        if result.state == GaitState.HOLD:
+            # latched until an operator's reset, which an in-process walk has not: it ends here
+            # (waiting out the stall time would only hide the cause)
+            outcome.hold = core.fsm.transitions[-1].cause
             break
         if len(outcome.landed) >= 2 * cycles:
             break

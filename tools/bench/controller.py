@@ -64,6 +64,7 @@ def _walk_summary(outcome: Any, states: list[str]) -> dict[str, Any]:
         "steps_completed": len(outcome.landed),
         "fall": outcome.fall_reason,
         "fault": outcome.fault,
+        "hold": outcome.hold,
         "final_state": outcome.final_state,
         "ticks": len(states),
         "walking_ticks": sum(s in WALKING for s in states),
@@ -205,7 +206,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _walked(w: dict[str, Any], asked: int) -> str:
-    end = f"fell ({w['fall']})" if w["fall"] else (f"FAULT ({w['fault']})" if w["fault"] else "no fall")
+    end = (f"fell ({w['fall']})" if w["fall"] else f"FAULT ({w['fault']})" if w["fault"]
+           else f"HOLD ({w['hold']})" if w["hold"] else "no fall")
     return (f"{w['cycles_completed']} of {asked} gait cycles, {end}, {w['ticks']} ticks "
             f"of which {w['walking_ticks']} walking")
 

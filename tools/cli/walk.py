@@ -155,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _summary_text(s: dict[str, Any]) -> str:
     lengths = s["step_length_m"]
-    fall = f"fell: {s['fall_reason']}" if s["falls"] else ("no fall" + (" (stalled)" if s["stalled"] else ""))
+    fall = f"fell: {s['fall_reason']}" if s["falls"] else ("no fall" + (
+        f" (FAULT {s['fault']})" if s["fault"] else f" (HOLD {s['hold']})" if s["hold"] else " (stalled)" if s["stalled"] else ""))
     text = (
         f"{s['mode']} walk, {s['policy']} step length{'' if s['theta'] is None else ' theta ' + str(s['theta'])}, "
         f"seed {s['seed']}: {s['cycles_completed']} of {s['cycles_asked']} gait cycles ({s['steps_completed']} steps), {fall}\n"

@@ -102,10 +102,10 @@ def run_walk(cfg: Config, job: WalkJob) -> dict[str, Any]:
         "cycles_completed": outcome.cycles_completed,
         "steps_completed": len(landed),
         "complete": complete,
-        # a walk that stalled or faulted without falling did not walk its cycles either: for the
+        # a walk that stalled, held or faulted without falling did not walk its cycles either: for the
         # learner it ends like a fall, after the cycles it completed
         "fell": not complete,
-        "end": ("walked" if complete else outcome.fall_reason or (f"fault {outcome.fault}" if outcome.fault else "stalled")),
+        "end": "walked" if complete else _end(outcome),
         "cycle_costs": cycle_costs(forces),
         "step_lengths_m": [round(s.length_m, 5) for s in landed],
         "step_x_ratio": [round(s.x_ratio, 5) for s in landed],
@@ -119,6 +119,16 @@ def run_walk(cfg: Config, job: WalkJob) -> dict[str, Any]:
         "sim_time_s": round(outcome.sim_time_s, 2),
         "wall_time_s": round(outcome.wall_time_s, 2),
     }
+
+
+def _end(outcome: Any) -> str:
+    """How a walk that did not complete its cycles ended: the fall's criterion, ``fault CAUSE``,
+    ``hold CAUSE`` (the controller's protective stop) or ``stalled`` (no step landed in time)."""
+    if outcome.fall_reason:
+        return outcome.fall_reason
+    if outcome.fault:
+        return f"fault {outcome.fault}"
+    return f"hold {outcome.hold}" if outcome.hold else "stalled"
 
 
 def _mean(value: float) -> float | None:
