@@ -15,7 +15,7 @@ import pytest
 
 from config import default_config_path, load_config, with_overrides
 from tools.cli import main
-from tools.experiment import experiment
+from tools.experiment import experiment, runner
 from tools.experiment.compare import GaitStats, compare_jobs
 from tools.experiment.experiment import Plan, comparison_checks, learning_checks
 from tools.experiment.learn import STARTS, LearningRun, Update, rollout_cost, walk_seed
@@ -111,6 +111,14 @@ def test_walk_jobs_are_keyed_by_everything_that_changes_the_walk():
     others = [WalkJob(seed=2, cycles=10, theta=(-1.0, 0.6)), WalkJob(seed=1, cycles=9, theta=(-1.0, 0.6)),
               WalkJob(seed=1, cycles=10, theta=(-1.0, 0.61)), WalkJob(seed=1, cycles=10, fixed_m=0.12)]
     assert len({a.key("cfg"), a.key("cfg2"), *(o.key("cfg") for o in others)}) == 6
+
+
+def test_the_result_format_is_part_of_a_walks_key(monkeypatch):
+    """A result whose meaning changed (runner.RESULT_FORMAT) is not reused under the new one."""
+    job = WalkJob(seed=1, cycles=1, fixed_m=0.12)
+    old_key = job.key("cfg")
+    monkeypatch.setattr(runner, "RESULT_FORMAT", "aider-exo.walk-result/0")
+    assert job.key("cfg") != old_key
     with pytest.raises(ExperimentError, match="exactly one"):
         WalkJob(seed=1, cycles=1)
 

@@ -28,7 +28,10 @@ import numpy as np
 
 from config import AiderError, Config, config_hash
 
-RESULT_FORMAT = "aider-exo.walk-result/1"
+#: the stored result's format, part of every job's key: a result whose meaning changes gets a new
+#: number, and the walks of an older format are run again (/2: a walk ends at the controller's
+#: HOLD, ``end`` "hold CAUSE"; /1 waited out the stall time and said "stalled")
+RESULT_FORMAT = "aider-exo.walk-result/2"
 
 
 class ExperimentError(AiderError):
@@ -64,8 +67,10 @@ class WalkJob:
         return f"theta ({self.theta[0]:.3f}, {self.theta[1]:.3f})"
 
     def key(self, cfg_digest: str) -> str:
-        """The name of this job's result: its fields, the configuration and the software version."""
-        text = json.dumps({"job": asdict(self), "config": cfg_digest, "software": _software_version()}, sort_keys=True)
+        """The name of this job's result: its fields, the configuration, the software version and the
+        result's format."""
+        text = json.dumps({"job": asdict(self), "config": cfg_digest, "software": _software_version(), "format": RESULT_FORMAT},
+                          sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:24]
 
 
