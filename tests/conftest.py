@@ -52,15 +52,22 @@ def _free_udp_port() -> int:
         return s.getsockname()[1]
 
 
+def udp_group(channel: str) -> tuple[str, int]:
+    """The (group, port) of a udp_multicast channel, parsed as the configuration parses it."""
+    from config.schema import BusConfig
+
+    return BusConfig(interface="udp_multicast", channel=channel, bitrate_bit_s=1_000_000).udp_group()
+
+
 def udp_multicast_problem(channel: str) -> str | None:
     """Why two buses on the UDP multicast ``channel`` do not hear each other here, or None."""
     import can
 
     from protocol.bus import UdpBus
 
-    group, _, port = channel.partition(":")
+    group, port = udp_group(channel)
     try:
-        with UdpBus(group, int(port)) as a, UdpBus(group, int(port)) as b:
+        with UdpBus(group, port) as a, UdpBus(group, port) as b:
             a.send(can.Message(arbitration_id=0x7FF, data=b"probe", is_extended_id=False))
             if b.recv(timeout=2.0) is None:
                 return f"a frame sent to {channel} did not come back over the loopback"

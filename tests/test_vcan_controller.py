@@ -46,7 +46,7 @@ from protocol.clock import MonotonicClock
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver
 from protocol.enums import GaitState
-from tests.conftest import ROOT
+from tests.conftest import ROOT, udp_group
 from tests.test_vcan_trace import PROBE_ID, candump
 from tools.pipeline import default_max_time_s
 
@@ -93,9 +93,9 @@ def udp_record(channel: str, path: Path) -> Iterator[None]:
     a probe frame from another socket must come through, so every frame sent before it is in."""
     from protocol.bus import UdpBus
 
-    group, _, port = channel.partition(":")
+    group, port = udp_group(channel)
     done = threading.Event()
-    with UdpBus(group, int(port)) as listener, UdpBus(group, int(port)) as probe, path.open("w") as out:
+    with UdpBus(group, port) as listener, UdpBus(group, port) as probe, path.open("w") as out:
         writer = can.CanutilsLogWriter(out, channel=channel)
 
         def run() -> None:
