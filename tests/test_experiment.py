@@ -111,6 +111,8 @@ def test_walk_jobs_are_keyed_by_everything_that_changes_the_walk():
     others = [WalkJob(seed=2, cycles=10, theta=(-1.0, 0.6)), WalkJob(seed=1, cycles=9, theta=(-1.0, 0.6)),
               WalkJob(seed=1, cycles=10, theta=(-1.0, 0.61)), WalkJob(seed=1, cycles=10, fixed_m=0.12)]
     assert len({a.key("cfg"), a.key("cfg2"), *(o.key("cfg") for o in others)}) == 6
+    with pytest.raises(ExperimentError, match="exactly one"):
+        WalkJob(seed=1, cycles=1)
 
 
 def test_the_result_format_is_part_of_a_walks_key(monkeypatch):
@@ -119,8 +121,6 @@ def test_the_result_format_is_part_of_a_walks_key(monkeypatch):
     old_key = job.key("cfg")
     monkeypatch.setattr(runner, "RESULT_FORMAT", "aider-exo.walk-result/0")
     assert job.key("cfg") != old_key
-    with pytest.raises(ExperimentError, match="exactly one"):
-        WalkJob(seed=1, cycles=1)
 
 
 def test_rollout_cost_is_equation_11():
