@@ -487,6 +487,11 @@ class ControllerCore:
         if state in SWINGS and before == GaitState.DOUBLE_SUPPORT:
             goal, theta = self.policy.goal(est.x_ratio_planted)
             leg = _leg_index(state)
+            if self.steps and self.steps[-1].landed:
+                # the last step as the double support after it left it (a landing foot may still slide)
+                last = self.steps[-1]
+                front = 0 if last.leg == "l" else 1
+                last.placed_m = float(est.ankles[front][0] - est.ankles[1 - front][0])
             self.gait.start_swing(leg, est, goal.length_m)
             step = self._step
             step.leg, step.swing_tick, step.x_ratio, step.theta = "lr"[leg], tick, float(est.x_ratio_planted), theta

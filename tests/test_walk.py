@@ -89,8 +89,10 @@ def test_two_gait_cycles_walk_without_a_fall_and_estimate_the_com_ratio_within_t
 def test_a_walk_is_deterministic_for_its_seed(walked, one_cycle):
     outcome, _, _ = walked
     # The same seed: the same walk, step for step and tick for tick (here: the one-cycle walk is
-    # the first cycle of the two-cycle one, which also had the telemetry on).
-    assert as_records(one_cycle.steps) == as_records(outcome.steps[:2])
+    # the first cycle of the two-cycle one, which also had the telemetry on; its last step has no
+    # next swing, so no length as placed).
+    first = [outcome.steps[0], dataclasses.replace(outcome.steps[1], placed_m=math.nan)]
+    assert as_records(one_cycle.steps) == as_records(first)
     assert one_cycle.ratio_errors == outcome.ratio_errors[: len(one_cycle.ratio_errors)]
     assert one_cycle.ticks == outcome.steps[1].end_tick + 1
 
@@ -118,6 +120,28 @@ def test_a_fixed_step_policy_commands_the_same_length_every_step():
     assert set(commanded) == {0.12}
     for s in outcome.steps:
         assert (s.length_m, s.requested_m, s.clamped, s.theta) == (0.12, 0.12, False, None)
+
+
+def test_a_step_as_placed_is_the_feet_spacing_measured_when_the_next_swing_starts():
+    """The commanded length is where the swing aims; ``placed_m`` is where the foot stood once the
+    double support after it was over, from the sensors: it matches the simulation's ankles."""
+    policy, _ = factory.step_policy(BASE.controller, fixed_m=0.12)
+    truth = {}  # swing-start tick -> the simulated ankles' fore-aft distance, by leg
+
+    def on_tick(result, core, host):
+        if result.state in SWINGS and core.steps and core.steps[-1].swing_tick == result.tick:
+            x = {side: float(host.patient.ankle_xy(side)[0]) for side in "lr"}
+            truth[result.tick] = {"l": x["l"] - x["r"], "r": x["r"] - x["l"]}
+
+    outcome = walk(BASE, cycles=2, seed=0, mode="sagittal", policy=policy, on_tick=on_tick)
+    steps = outcome.landed
+    assert len(steps) == 4 and math.isnan(steps[-1].placed_m)  # no swing after the last one
+    for step, following in itertools.pairwise(steps):
+        assert step.placed_m == pytest.approx(truth[following.swing_tick][step.leg], abs=0.005)
+        assert 0.0 < step.placed_m < 0.12 + 0.03
+    placed = outcome.summary()["placed_step_m"]
+    assert placed["mean"] == pytest.approx(np.mean([s.placed_m for s in steps[:-1]]), abs=1e-4)
+    assert placed["min"] <= placed["mean"] <= placed["max"]
 
 
 def test_the_learning_policy_updates_within_a_short_walk_and_its_patient_file_loads_back(tmp_path):
@@ -239,7 +263,7 @@ def test_the_telemetry_log_has_its_schema_and_the_gait_fields_filled_during_swin
 
 SUMMARY_FIELDS = {
     "mode", "seed", "policy", "theta", "cycles_asked", "cycles_completed", "steps_completed", "falls", "fall_reason",
-    "fault", "hold", "stalled", "final_state", "mean_stick_force_n", "mean_arm_torque_nm", "step_length_m", "x_ratio_mae", "x_ratio_samples",
+    "fault", "hold", "stalled", "final_state", "mean_stick_force_n", "mean_arm_torque_nm", "step_length_m", "placed_step_m", "x_ratio_mae", "x_ratio_samples",
     "sim_time_s", "wall_time_s", "ticks", "receiver", "timing", "steps", "bus", "telemetry",
 }
 

@@ -97,8 +97,9 @@ class WalkOutcome:
             "final_state": self.final_state,
             "mean_stick_force_n": _round(self.mean_stick_force_n, 2),
             "mean_arm_torque_nm": _round(self.mean_arm_torque_nm, 2),
-            "step_length_m": {"mean": _round(float(np.mean(lengths)) if lengths else math.nan),
-                              "min": _round(min(lengths, default=math.nan)), "max": _round(max(lengths, default=math.nan))},
+            "step_length_m": _spread(lengths),
+            # as the feet stood when the next swing started (the last step has none)
+            "placed_step_m": _spread([s.placed_m for s in self.landed if math.isfinite(s.placed_m)]),
             "x_ratio_mae": _round(self.ratio_mae),
             "x_ratio_samples": len(self.ratio_errors),
             "sim_time_s": round(self.sim_time_s, 2),
@@ -112,6 +113,12 @@ class WalkOutcome:
 
 def _round(x: float, digits: int = 4) -> float | None:
     return round(x, digits) if math.isfinite(x) else None
+
+
+def _spread(values: list[float]) -> dict[str, float | None]:
+    """Mean, min and max of ``values`` (None for none)."""
+    return {"mean": _round(float(np.mean(values)) if values else math.nan),
+            "min": _round(min(values, default=math.nan)), "max": _round(max(values, default=math.nan))}
 
 
 def walk_config(cfg: Config, mode: str, channel: str) -> Config:

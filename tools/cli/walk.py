@@ -154,13 +154,14 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _summary_text(s: dict[str, Any]) -> str:
-    lengths = s["step_length_m"]
+    lengths, placed = s["step_length_m"], s["placed_step_m"]
     fall = f"fell: {s['fall_reason']}" if s["falls"] else ("no fall" + (
         f" (FAULT {s['fault']})" if s["fault"] else f" (HOLD {s['hold']})" if s["hold"] else " (stalled)" if s["stalled"] else ""))
     text = (
         f"{s['mode']} walk, {s['policy']} step length{'' if s['theta'] is None else ' theta ' + str(s['theta'])}, "
         f"seed {s['seed']}: {s['cycles_completed']} of {s['cycles_asked']} gait cycles ({s['steps_completed']} steps), {fall}\n"
-        f"  step length {lengths['mean']} m (min {lengths['min']}, max {lengths['max']}), mean stick force "
+        f"  step length {lengths['mean']} m (min {lengths['min']}, max {lengths['max']}; as placed {placed['mean']} m, "
+        f"min {placed['min']}, max {placed['max']}), mean stick force "
         f"{s['mean_stick_force_n']} N, upper-body torque {s['mean_arm_torque_nm']} N·m, X_CoM/X_SP error "
         f"{s['x_ratio_mae']} (mean over {s['x_ratio_samples']} ticks)\n"
         f"  {s['sim_time_s']} s simulated in {s['wall_time_s']} s, {s['ticks']} ticks on {s['bus']}; frames rejected "
