@@ -213,6 +213,11 @@ class GaitConfig:
     landing_fraction: float = field_spec(doc="A landing counts after this fraction of the swing's duration.", min=0.1, max=1.0)
     landing_depth_m: float = field_spec(doc="The swing's goal lies this far below the stance ankle.", unit="m", min=0.0, max=0.05)
     swing_timeout_s: float = field_spec(doc="A swing with no landing ends this long after its duration.", unit="s", min=0.0, max=5.0)
+    placement_gain: float = field_spec(
+        doc="Foot placement: each step's shortfall (commanded less as placed) adds this fraction of itself to how far "
+            "beyond the commanded length the next swings aim (0: aim at the commanded length).", min=0.0, max=1.0)
+    max_aim_offset_m: float = field_spec(doc="Foot placement: a swing aims at most this far beyond or short of the commanded length.",
+                                         unit="m", min=0.0, max=0.1)
 
     def validate(self) -> None:
         if self.stick_placed_n <= self.stick_lifted_n:

@@ -492,10 +492,11 @@ class ControllerCore:
                 last = self.steps[-1]
                 front = 0 if last.leg == "l" else 1
                 last.placed_m = float(est.ankles[front][0] - est.ankles[1 - front][0])
-            self.gait.start_swing(leg, est, goal.length_m)
+                self.gait.placed(last.length_m, last.placed_m)
+            aim = self.gait.start_swing(leg, est, goal.length_m)
             step = self._step
             step.leg, step.swing_tick, step.x_ratio, step.theta = "lr"[leg], tick, float(est.x_ratio_planted), theta
-            step.length_m, step.requested_m, step.clamped = goal.length_m, goal.requested_m, goal.clamped
+            step.length_m, step.requested_m, step.clamped, step.aimed_m = goal.length_m, goal.requested_m, goal.clamped, aim
             self.steps.append(step)
             events.append(f"step {step.index} ({step.leg}): {goal.length_m:.3f} m at X_CoM/X_SP {est.x_ratio_planted:.2f}"
                           + (f" (clamped: {goal.reason})" if goal.clamped else ""))

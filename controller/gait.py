@@ -149,7 +149,8 @@ class GaitPlanner:
         self.targets = np.zeros(4)
         self.swing_leg: int | None = None
         self.swing_t = 0.0
-        self.step_length_m = math.nan
+        self.step_length_m = math.nan  # commanded
+        self.aim_offset_m = 0.0  # how far beyond the commanded length the swings aim (foot placement)
         self._lean_best_x = -math.inf  # the farthest the CoM got in this lean, and how long since
         self._lean_still_s = 0.0
         self._foot_free_s = 0.0  # how long the next swing's foot has been unloaded
@@ -285,11 +286,26 @@ class GaitPlanner:
 
     # -- swing -------------------------------------------------------------------------------------
 
-    def start_swing(self, leg: int, est: Estimate, length_m: float) -> None:
+    def placed(self, commanded_m: float, placed_m: float) -> None:
+        """A step ``commanded_m`` long was placed ``placed_m`` (measured once the double support after
+        it was over): the next swings aim beyond the commanded length by ``placement_gain`` of the
+        shortfall more (an integral loop on the placement, within ``max_aim_offset``). A length that
+        is not a number changes nothing."""
+        p = self.p
+        if not (math.isfinite(commanded_m) and math.isfinite(placed_m)):
+            return
+        offset = self.aim_offset_m + p.placement_gain * (commanded_m - placed_m)
+        self.aim_offset_m = _clip(offset, -p.max_aim_offset_m, p.max_aim_offset_m)
+
+    def start_swing(self, leg: int, est: Estimate, length_m: float) -> float:
+        """Start the swing of ``leg`` for a step ``length_m`` long; returns where it aims (the length
+        plus the placement's offset)."""
         stance = 1 - leg
         start = est.ankles[leg] - est.ankles[stance]
-        self.dmp.reset(x0=np.array([start[0], start[2]]), goal=np.array([length_m, -self.p.landing_depth_m]))
+        aim = length_m + self.aim_offset_m
+        self.dmp.reset(x0=np.array([start[0], start[2]]), goal=np.array([aim, -self.p.landing_depth_m]))
         self.swing_leg, self.swing_t, self.step_length_m = leg, 0.0, length_m
+        return aim
 
     def swing(self, est: Estimate, m: Measurements) -> SwingTick:
         leg, p = self.swing_leg, self.p

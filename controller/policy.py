@@ -40,6 +40,7 @@ class StepRecord:
     swing_tick: int = -1
     end_tick: int = -1
     length_m: float = math.nan  # commanded (after the clamp)
+    aimed_m: float = math.nan  # where the swing aimed: the length plus the foot placement's offset
     placed_m: float = math.nan  # as placed: the swing ankle ahead of the other when the next swing starts
     requested_m: float = math.nan
     clamped: bool = False
@@ -61,7 +62,7 @@ class StepRecord:
     def as_dict(self) -> dict:
         return {
             "index": self.index, "leg": self.leg, "start_tick": self.start_tick, "swing_tick": self.swing_tick,
-            "end_tick": self.end_tick, "length_m": _r(self.length_m), "placed_m": _r(self.placed_m), "requested_m": _r(self.requested_m),
+            "end_tick": self.end_tick, "length_m": _r(self.length_m), "aimed_m": _r(self.aimed_m), "placed_m": _r(self.placed_m), "requested_m": _r(self.requested_m),
             "clamped": self.clamped, "x_ratio": _r(self.x_ratio),
             "theta": None if self.theta is None else [round(v, 4) for v in self.theta],
             "landed": self.landed, "mean_stick_force_n": _r(self.mean_stick_force_n, 2),

@@ -6,6 +6,7 @@ configuration, so that the tests survive gait tuning."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -266,3 +267,51 @@ def test_with_both_sticks_moved_double_support_leans_toward_the_patients_goal():
     ds = g.double_support(ahead, measurements(ahead), RIGHT)
     assert ds.part == "lean" and ds.lean_goal_x == pytest.approx(0.44 - P.lean_behind_tips_m)
     assert mid_lead(g, ahead) > 0.0  # the CoM behind the goal: the hips go forward
+
+
+# -- GaitPlanner: foot placement -------------------------------------------------------------------
+
+
+def placing(est: Estimate, gain: float = 0.5, max_offset_m: float = 0.05) -> GaitPlanner:
+    """A planner with the foot placement loop on (whatever the configuration's default)."""
+    g = GaitPlanner(LEG, Dmp(load_swing(CFG)), replace(P, placement_gain=gain, max_aim_offset_m=max_offset_m),
+                    dt_s=DT, substeps=CFG.swing.substeps)
+    g.stand_here(est, measurements(est))
+    return g
+
+
+def test_a_swing_aims_beyond_the_commanded_length_by_the_integrated_shortfall():
+    est = estimate()
+    g = placing(est)
+    assert g.start_swing(RIGHT, est, 0.10) == pytest.approx(0.10)  # nothing measured yet: aim at the length
+    assert g.dmp.goal[0] == pytest.approx(0.10) and g.step_length_m == 0.10
+    g.placed(0.10, 0.08)  # landed 2 cm short
+    offset = 0.5 * 0.02
+    assert g.aim_offset_m == pytest.approx(offset)
+    assert g.start_swing(LEFT, est, 0.12) == pytest.approx(0.12 + offset)
+    assert g.dmp.goal[0] == pytest.approx(0.12 + offset) and g.step_length_m == 0.12  # the record keeps the commanded length
+    g.placed(0.12, 0.12)  # on the mark: the offset stays
+    assert g.aim_offset_m == pytest.approx(offset)
+    g.placed(0.12, 0.125)  # beyond it: the offset shrinks
+    assert g.aim_offset_m == pytest.approx(offset - 0.5 * 0.005)
+
+
+def test_the_aim_offset_stays_within_max_aim_offset():
+    est = estimate()
+    g = placing(est)
+    for _ in range(50):
+        g.placed(0.10, 0.0)  # a foot that never gets anywhere does not make the swings aim without bound
+    assert g.aim_offset_m == pytest.approx(0.05)
+    for _ in range(50):
+        g.placed(0.10, 0.30)
+    assert g.aim_offset_m == pytest.approx(-0.05)
+    g.placed(0.10, math.nan)  # a placement that could not be measured
+    g.placed(math.inf, 0.10)
+    assert g.aim_offset_m == pytest.approx(-0.05)
+
+
+def test_without_placement_gain_a_swing_aims_at_the_commanded_length():
+    est = estimate()
+    g = placing(est, gain=0.0)
+    g.placed(0.10, 0.07)
+    assert g.aim_offset_m == 0.0 and g.start_swing(RIGHT, est, 0.10) == 0.10

@@ -76,6 +76,23 @@ def expect_walking_on(rig: FaultRig, t0: int) -> None:
     assert rig.oracle.violations == []
 
 
+def test_the_oracle_flags_a_step_aimed_beyond_the_placement_offset():
+    """I3 also bounds the swing's aim (the length plus the foot placement's offset): a step record
+    that aims farther, or at NaN, is a violation; the rig's own steps are not."""
+    from tools.safety.oracle import Oracle
+
+    with at("swing") as rig:
+        assert rig.oracle.violations == [] and rig.core.steps
+        step = rig.core.steps[-1]
+        assert abs(step.aimed_m - step.length_m) <= CFG.controller.gait.max_aim_offset_m
+        result = rig.step()
+        for aimed in (step.length_m + CFG.controller.gait.max_aim_offset_m + 0.01, float("nan")):
+            step.aimed_m = aimed
+            fresh = Oracle(rig.core)  # one that has not seen the step yet
+            fresh.check(result, [])
+            assert any("I3" in v and "aimed at" in v for v in fresh.violations), fresh.violations
+
+
 @dataclass(frozen=True)
 class Case:
     row: str

@@ -120,7 +120,8 @@ class Oracle:
     # -- I3 --------------------------------------------------------------------------------------
 
     def _learning(self, k: int) -> None:
-        """Every new step's theta and length are finite, the length within the step bounds."""
+        """Every new step's theta and length are finite, the length within the step bounds, and the
+        swing's aim within the foot placement's offset of it."""
         steps = self.core.steps
         bounds = self.core.policy.bounds
         for step in steps[self._steps_seen:]:
@@ -129,6 +130,8 @@ class Oracle:
                 self._fail(k, f"I3 step {step.index}: theta {theta}")
             if not (math.isfinite(step.length_m) and bounds.min_m - 1e-9 <= step.length_m <= bounds.max_m + 1e-9):
                 self._fail(k, f"I3 step {step.index}: length {step.length_m}")
+            if not abs(step.aimed_m - step.length_m) <= self.core.gait.p.max_aim_offset_m + 1e-9:  # a NaN fails too
+                self._fail(k, f"I3 step {step.index}: aimed at {step.aimed_m} for a length of {step.length_m}")
         self._steps_seen = len(steps)
 
     # -- I2 (a step), I4, I6 ---------------------------------------------------------------------
