@@ -37,7 +37,8 @@ demo: venv system-deps
 	$(AIDER) walk --steps 10 --render build/walk
 
 test: venv system-deps
-	$(PY) -m pytest -m "not vcan" -n auto
+	$(PY) -m pytest -m "not vcan and not realtime" -n auto
+	$(PY) -m pytest -m realtime -p no:cacheprovider
 	tools/vcan-run -- $(PY) -m pytest -m vcan -p no:cacheprovider
 
 # Regenerate the protocol documentation from the DBC (a test fails when it is stale).

@@ -82,6 +82,7 @@ def test_a_frozen_node_is_lost_within_three_ticks(rig):
     assert any("NODE_LOST(LEFT_KNEE)" in e for e in loop.report.events)
 
 
+@pytest.mark.realtime
 def test_real_time_controller_and_real_time_nodes_hold_the_hhea_up(request):
     """Both sides on the monotonic clock: the nodes in a thread with their own 20 ms timer, the
     controller on absolute deadlines. Nothing here asserts a time: only that the protocol keeps
@@ -139,6 +140,7 @@ def _real_time_walk(cycles: int, channel: str):
     return loop, core, states, fall, nodes
 
 
+@pytest.mark.realtime
 def test_real_time_controller_walks_two_gait_cycles_with_real_time_nodes():
     """Walking in real time: the controller on absolute 20 ms deadlines, the nodes in a thread on
     their own 20 ms physics timer, every value a frame on the in-process virtual bus. Two gait

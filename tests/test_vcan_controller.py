@@ -250,7 +250,8 @@ def _stall_evidence(summary: dict, final: dict, log: Path, tick: int, cause: str
     return evidence
 
 
-@pytest.mark.parametrize("interface", [pytest.param("socketcan", marks=pytest.mark.vcan), "udp_multicast"])
+@pytest.mark.parametrize("interface", [pytest.param("socketcan", marks=pytest.mark.vcan),
+                                       pytest.param("udp_multicast", marks=pytest.mark.realtime)])
 def test_controller_walks_five_gait_cycles_in_real_time_as_two_processes(interface, request, tmp_path):
     """Both processes on their own 20 ms clocks walk 5 gait cycles, over vcan0 in the sandbox and
     over UDP multicast on the host. A walk stopped by a lost node, a lost sensor or overruns is
