@@ -490,7 +490,7 @@ class ControllerCore:
             if self.steps and self.steps[-1].landed:
                 # the last step as the double support after it left it (a landing foot may still slide)
                 last = self.steps[-1]
-                front = 0 if last.leg == "l" else 1
+                front = "lr".index(last.leg)
                 last.placed_m = float(est.ankles[front][0] - est.ankles[1 - front][0])
                 self.gait.placed(last.length_m, last.placed_m)
             aim = self.gait.start_swing(leg, est, goal.length_m)

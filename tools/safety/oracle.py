@@ -130,7 +130,7 @@ class Oracle:
                 self._fail(k, f"I3 step {step.index}: theta {theta}")
             if not (math.isfinite(step.length_m) and bounds.min_m - 1e-9 <= step.length_m <= bounds.max_m + 1e-9):
                 self._fail(k, f"I3 step {step.index}: length {step.length_m}")
-            if not abs(step.aimed_m - step.length_m) <= self.core.gait.p.max_aim_offset_m + 1e-9:  # a NaN fails too
+            if not abs(step.aimed_m - step.length_m) <= self.core.cfg.gait.max_aim_offset_m + 1e-9:  # a NaN fails too
                 self._fail(k, f"I3 step {step.index}: aimed at {step.aimed_m} for a length of {step.length_m}")
         self._steps_seen = len(steps)
 
