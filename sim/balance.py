@@ -11,6 +11,7 @@ distribution produces the wrench and the residual says so: that is how the HHEA 
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,6 +47,14 @@ def pyramid_edges(mu: float, lateral: bool = True) -> np.ndarray:
     return edges
 
 
+@functools.lru_cache(maxsize=64)
+def _stacked_edges(mu: float, laterals: tuple[bool, ...]) -> np.ndarray:
+    """(k, 4, 3) friction-pyramid edges of k contacts, read-only (a handful of combinations occur)."""
+    edges = np.stack([pyramid_edges(mu, lateral) for lateral in laterals])
+    edges.flags.writeable = False
+    return edges
+
+
 def distribute(
     wrench: np.ndarray,
     com: np.ndarray,
@@ -66,18 +75,21 @@ def distribute(
     k = len(contacts)
     if k == 0:
         return np.zeros((0, 3)), float(np.linalg.norm(weights * wrench))
-    edges = np.stack([pyramid_edges(mu, c.lateral) for c in contacts])  # (k, 4, 3)
+    edges = _stacked_edges(mu, tuple(c.lateral for c in contacts))  # (k, 4, 3)
+    flat = edges.reshape(-1, 3)
     r = np.array([c.point for c in contacts]) - com  # (k, 3)
     a = np.empty((6, 4 * k))
-    a[:3] = edges.reshape(-1, 3).T
-    a[3:] = cross(np.repeat(r, 4, axis=0), edges.reshape(-1, 3)).T
+    a[:3] = flat.T
+    a[3:] = cross(np.repeat(r, 4, axis=0), flat).T
     f0 = np.array([0.0, 0.0, min_normal_n])
     base = np.concatenate([k * f0, cross(r, f0).sum(axis=0)])
-    reg = np.repeat([np.sqrt(ct.cost) for ct in contacts], 4)
-    lhs = np.vstack([weights[:, None] * a, np.diag(reg)])
+    # the least-squares system: the weighted wrench rows over the regularisation's diagonal
+    lhs = np.zeros((6 + 4 * k, 4 * k))
+    lhs[:6] = weights[:, None] * a
+    np.fill_diagonal(lhs[6:], np.repeat([math.sqrt(ct.cost) for ct in contacts], 4))
     rhs = np.concatenate([weights * (wrench - base), np.zeros(4 * k)])
     lam = nnls(lhs, rhs)
-    forces = np.einsum("ke,kec->kc", lam.reshape(k, 4), edges) + np.array([0.0, 0.0, min_normal_n])
+    forces = np.einsum("ke,kec->kc", lam.reshape(k, 4), edges) + f0
     residual = float(np.linalg.norm(weights * (a @ lam + base - wrench)))
     return forces, residual
 

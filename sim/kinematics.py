@@ -1,4 +1,4 @@
-"""Whole-body kinematics of the HHEA from one batched link-state query per update.
+"""Whole-body kinematics of the HHEA from the world's batched link states (:meth:`World.link_states`).
 
 For a revolute joint j with world axis a_j through the point o_j, the Jacobian column of a point p
 on a link below j is ``a_j x (p - o_j)``. One ``getLinkStates`` call gives every link frame (whose
@@ -21,7 +21,6 @@ class Kinematics:
         c, robot = world.client, world.robot
         n = c.getNumJoints(robot)
         self.n = n
-        self._links = list(range(n))
         self.axis_local = np.array([c.getJointInfo(robot, j)[13] for j in range(n)], dtype=float)
         parent = [c.getJointInfo(robot, j)[16] for j in range(n)]
         # ancestors[j]: joints whose motion moves link j (j itself and every joint above it)
@@ -37,26 +36,15 @@ class Kinematics:
         for link in range(n):
             self.moves[self.ancestors[link], link + 1] = True
         self.masses = world.masses
-        self.joint_origin = np.zeros((n, 3))
-        self.joint_axis = np.zeros((n, 3))
-        self.link_com = np.zeros((n + 1, 3))
-        self.link_vel = np.zeros((n + 1, 3))
-        self.link_rot = np.zeros((n + 1, 3, 3))
+        self.update()
 
     def update(self) -> None:
-        c, robot = self.world.client, self.world.robot
-        base_pos, base_orn = c.getBasePositionAndOrientation(robot)
-        base_lin, _ = c.getBaseVelocity(robot)
-        self.link_com[0] = base_pos
-        self.link_vel[0] = base_lin
-        self.link_rot[0] = np.array(c.getMatrixFromQuaternion(base_orn)).reshape(3, 3)
-        states = c.getLinkStates(robot, self._links, computeLinkVelocity=1)
-        self.link_com[1:] = [s[0] for s in states]
-        self.link_vel[1:] = [s[6] for s in states]
-        self.joint_origin[:] = [s[4] for s in states]
-        self.link_rot[1:] = np.reshape([c.getMatrixFromQuaternion(s[5]) for s in states], (self.n, 3, 3))
+        """Take the world's current link states (shared, read-only arrays)."""
+        links = self.world.link_states()
+        self.link_com, self.link_vel, self.link_rot = links.com, links.com_velocity, links.rot
+        self.joint_origin = links.origin[1:]
         # every link's rot @ axis at once (each axis is a unit vector of the joint frame: exact)
-        self.joint_axis[:] = (self.link_rot[1:] @ self.axis_local[:, :, None])[..., 0]
+        self.joint_axis = (links.rot[1:] @ self.axis_local[:, :, None])[..., 0]
 
     @property
     def com(self) -> np.ndarray:

@@ -109,7 +109,7 @@ class Sensors:
         sticks = np.array([self.stick_force("l"), self.stick_force("r")])
         stick_rpy = np.array([rpy_from_matrix(w.link_frame(f"forearm_{s}")[1]) for s in "lr"])
         _, rot = w.link_frame("trunk")
-        omega_world = np.array(w.client.getBaseVelocity(w.robot)[1])
+        omega_world = w.link_states().base_angular_velocity
         specific = rot.T @ (w.base_acceleration + np.array([0.0, 0.0, GRAVITY]))
         heel_toe = np.array([self.plantar("l"), self.plantar("r")])
         force_std = cfg.force_noise_n

@@ -364,7 +364,8 @@ class Walker:
         com = kin.com
         trunk_origin, trunk_rot = w.link_frame("trunk")
         rpy = rpy_from_matrix(trunk_rot)
-        base_v, omega = (np.array(v) for v in w.client.getBaseVelocity(w.robot))
+        links = w.link_states()
+        base_v, omega = links.com_velocity[0], links.base_angular_velocity
         feet = [side for side in SIDES if self.stance_feet[side]]
         tips = [side for side in SIDES if self.planted[side]]
         # Where the stance legs carry the hip: the patient's lean sets x (rate-limited), height is

@@ -84,6 +84,19 @@ class StancePose:
     hip_x_m: float | None = None  # default: midway between the ankles
 
 
+@dataclass(frozen=True)
+class LinkStates:
+    """One state of the HHEA's links, base first (index 0, link k at k + 1): CoM positions and
+    velocities, frame origins (a link's frame is at its parent joint; the base's frame is the
+    trunk's, not its inertial frame) and frame rotations; and the base's angular velocity."""
+
+    com: np.ndarray  # (n + 1, 3)
+    com_velocity: np.ndarray  # (n + 1, 3)
+    origin: np.ndarray  # (n + 1, 3)
+    rot: np.ndarray  # (n + 1, 3, 3)
+    base_angular_velocity: np.ndarray  # (3,)
+
+
 class World:
     """The floor, the HHEA, its joint loops and the physics clock."""
 
@@ -149,8 +162,11 @@ class World:
         self.q = np.zeros(len(JOINT_ORDER))
         self.qd = np.zeros(len(JOINT_ORDER))
         self.tau = np.zeros(len(JOINT_ORDER))
-        self.base_velocity_prev = np.zeros(3)
+        self.base_velocity_prev = np.zeros(3)  # the base's linear and angular velocity after the last step
+        self._base_angular_velocity = (0.0, 0.0, 0.0)
         self.base_acceleration = np.zeros(3)
+        self._links: LinkStates | None = None  # this state's link frames, fetched on first use
+        self._contacts: dict[int, list[tuple]] | None = None  # this state's floor contacts by link
 
     # -- lifecycle -------------------------------------------------------------------------------
 
@@ -211,13 +227,15 @@ class World:
         for i, name in enumerate(ARM_JOINT_NAMES):
             self.arms.command(i, 1, q[name], 0.0, 0.0)
         self.base_velocity_prev = np.zeros(3)
+        self._base_angular_velocity = (0.0, 0.0, 0.0)
+        self._changed()
 
     # -- stepping ------------------------------------------------------------------------------
 
     def read_joints(self) -> None:
-        states = self.client.getJointStates(self.robot, self._all_joints)
-        self.q[:] = [s[0] for s in states]
-        self.qd[:] = [s[1] for s in states]
+        q, qd, *_ = zip(*self.client.getJointStates(self.robot, self._all_joints))
+        self.q[:] = q
+        self.qd[:] = qd
 
     def step(self) -> None:
         """One physics step: joint loops (firmware, muscles, ankle springs), then the physics."""
@@ -235,14 +253,21 @@ class World:
             self._hold_to_plane()
         c.stepSimulation()
         self.steps += 1
-        v = np.array(c.getBaseVelocity(self.robot)[0])
+        self._changed()
+        lin, self._base_angular_velocity = c.getBaseVelocity(self.robot)
+        v = np.array(lin)
         self.base_acceleration = (v - self.base_velocity_prev) / self.dt
         self.base_velocity_prev = v
+
+    def _changed(self) -> None:
+        """The world moved (a physics step, a placement): what was read of it is stale."""
+        self._links = None
+        self._contacts = None
 
     def _hold_to_plane(self) -> None:
         c, s = self.client, self.cfg.sagittal
         pos, orn = c.getBasePositionAndOrientation(self.robot)
-        lin, ang = c.getBaseVelocity(self.robot)
+        lin, ang = self.base_velocity_prev, self._base_angular_velocity  # as read after the last step
         roll, _, yaw = c.getEulerFromQuaternion(orn)
         fy = -s.lateral_stiffness_n_m * pos[1] - s.lateral_damping_ns_m * lin[1]
         c.applyExternalForce(self.robot, -1, [0, fy, 0], pos, pybullet.WORLD_FRAME)
@@ -251,35 +276,61 @@ class World:
         c.applyExternalTorque(self.robot, -1, [tx, 0, tz], pybullet.WORLD_FRAME)
 
     # -- queries -------------------------------------------------------------------------------
+    # Every query of the state between two physics steps reads one batched PyBullet query, made on
+    # first use: a 20 ms tick reads the same few frames and contacts a dozen times (sensors,
+    # patient, ground truth), and each PyBullet call costs microseconds of argument handling.
+
+    def link_states(self) -> LinkStates:
+        """Every link's frame, CoM and CoM velocity in this state (one ``getLinkStates`` call)."""
+        if self._links is None:
+            c = self.client
+            base_pos, base_orn = c.getBasePositionAndOrientation(self.robot)
+            base_lin, base_ang = self.base_velocity_prev, self._base_angular_velocity
+            states = c.getLinkStates(self.robot, self._all_joints, computeLinkVelocity=1)
+            n = len(states) + 1
+            com, vel, origin = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+            rot = np.empty((n, 3, 3))
+            com[0], vel[0] = base_pos, base_lin
+            rot[0] = np.reshape(c.getMatrixFromQuaternion(base_orn), (3, 3))
+            origin[0] = com[0] - rot[0] @ self._base_com_local
+            com[1:] = [st[0] for st in states]
+            vel[1:] = [st[6] for st in states]
+            origin[1:] = [st[4] for st in states]
+            rot[1:] = np.reshape([c.getMatrixFromQuaternion(st[5]) for st in states], (n - 1, 3, 3))
+            for a in (com, vel, origin, rot):
+                a.flags.writeable = False
+            self._links = LinkStates(com, vel, origin, rot, np.array(base_ang))
+        return self._links
 
     def link_positions(self) -> np.ndarray:
         """World positions of every link's centre of mass, base first: (n_links + 1, 3)."""
-        c = self.client
-        base = c.getBasePositionAndOrientation(self.robot)[0]
-        states = c.getLinkStates(self.robot, range(len(JOINT_ORDER)))
-        return np.array([base] + [s[0] for s in states])
+        return self.link_states().com
 
     def com(self) -> np.ndarray:
         return self.masses @ self.link_positions() / self.total_mass
 
+    def _floor_contacts(self) -> dict[int, list[tuple]]:
+        """This state's robot-floor contact points by robot link index (one ``getContactPoints``
+        call; each link's points in PyBullet's order, as a query for that link alone gives them)."""
+        if self._contacts is None:
+            self._contacts = {}
+            for cp in self.client.getContactPoints(bodyA=self.robot, bodyB=self.floor):
+                self._contacts.setdefault(cp[3], []).append(cp)
+        return self._contacts
+
     def contacts(self, link: str) -> list[tuple]:
         """PyBullet contact points between a robot link and the floor."""
-        return self.client.getContactPoints(bodyA=self.robot, bodyB=self.floor, linkIndexA=self.link_index[link])
+        return self._floor_contacts().get(self.link_index[link], [])
 
     def contact_normal_force(self, link: str) -> float:
         return float(sum(cp[9] for cp in self.contacts(link)))
 
     def touching_links(self) -> set[str]:
         names = {i: n for n, i in self.link_index.items()}
-        return {names[cp[3]] for cp in self.client.getContactPoints(bodyA=self.robot, bodyB=self.floor)}
+        return {names[i] for i in self._floor_contacts()}
 
     def link_frame(self, link: str) -> tuple[np.ndarray, np.ndarray]:
-        """World position of the link frame's origin and its rotation matrix."""
-        c = self.client
-        i = self.link_index[link]
-        if i == -1:
-            pos, orn = c.getBasePositionAndOrientation(self.robot)
-            rot = np.array(c.getMatrixFromQuaternion(orn)).reshape(3, 3)
-            return np.array(pos) - rot @ self._base_com_local, rot
-        state = c.getLinkState(self.robot, i)
-        return np.array(state[4]), np.array(c.getMatrixFromQuaternion(state[5])).reshape(3, 3)
+        """World position of the link frame's origin and its rotation matrix (read-only arrays)."""
+        i = self.link_index[link] + 1
+        links = self.link_states()
+        return links.origin[i], links.rot[i]

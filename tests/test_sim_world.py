@@ -44,6 +44,36 @@ def test_standing_contact_forces_carry_the_weight(mode):
         assert world.touching_links() == set(links)
 
 
+def test_state_queries_read_the_current_state_once_per_step():
+    """Frames and contacts are read once per physics state and shared read-only; a step or a
+    placement makes them stale, and each answer is what PyBullet's own per-link query gives."""
+    with _world("sagittal") as world:
+        world.place(STAND)
+        for _ in range(100):
+            world.step()
+        c = world.client
+        for link in ("foot_l", "forearm_r"):
+            state = c.getLinkState(world.robot, world.link_index[link])
+            origin, rot = world.link_frame(link)
+            assert np.array_equal(origin, state[4])
+            assert np.array_equal(rot, np.reshape(c.getMatrixFromQuaternion(state[5]), (3, 3)))
+            assert world.contacts(link) == list(c.getContactPoints(bodyA=world.robot, bodyB=world.floor,
+                                                                      linkIndexA=world.link_index[link]))
+            with pytest.raises(ValueError):
+                origin[0] = 0.0  # shared with every reader of this state
+        assert world.link_states() is world.link_states()  # one query per state
+        lin, ang = c.getBaseVelocity(world.robot)
+        assert np.array_equal(world.link_states().com_velocity[0], lin)
+        assert np.array_equal(world.link_states().base_angular_velocity, ang)
+        before = world.link_frame("shank_l")[0].copy()
+        world.exo.command(world.exo.index("knee_l"), 1, 0.6)
+        for _ in range(10):
+            world.step()
+        assert not np.array_equal(world.link_frame("shank_l")[0], before)
+        world.place(STAND)
+        assert np.array_equal(world.link_states().com_velocity[0], np.zeros(3))
+
+
 def test_trunk_imu_reads_gravity_at_a_known_tilt():
     pose = dataclasses.replace(STAND, trunk_pitch_rad=0.30, hip_x_m=0.02)
     with _world("sagittal") as world:
