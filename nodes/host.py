@@ -170,6 +170,9 @@ class NodesHost:
         self._physics_end_ns = 0  # real time: when the last physics tick ended
         self.sync_locked = False
         self.last_sync_tick = -1
+        # when the HHEA first fell: the controller's last SYNC then (in real time the nodes may
+        # run on after the controller has stopped sending them) and the simulated time
+        self.fall_at: dict[str, Any] | None = None
         self.gait_state: GaitState | None = None
         self.on_sync_hook: Callable[[int], None] | None = None  # after each SYNC's reports (recording the ground truth)
 
@@ -291,6 +294,8 @@ class NodesHost:
     def _physics_tick(self) -> None:
         self.reading = self.patient.tick(self.reading)
         self.stats.physics_ticks += 1
+        if self.fall_at is None and self.patient.fall:
+            self.fall_at = {"sync_tick": self.last_sync_tick, "sim_time_s": round(self.patient.t, 3)}
 
     def _apply(self, port: NodePort, cmd: DriveCommand) -> None:
         exo = self.world.exo
@@ -488,6 +493,7 @@ class NodesHost:
             "faults_injected": dict(self.faults.counts),
             "sensor_saturations": dict(self.stats.saturated),
             "fall": fall,
+            "fall_at": self.fall_at,
         }
 
     def truth(self) -> dict[str, Any]:

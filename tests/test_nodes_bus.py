@@ -611,3 +611,23 @@ def test_a_fault_naming_an_unknown_message_names_the_key():
 
     with pytest.raises(FaultConfigError, match=r"nodes.faults.y.message: unknown message 'STICK_MIDDLE'"):
         ScriptedController("nodes-badfault2", faults={"y": {"kind": "drop", "node": "LEFT_HIP", "message": "STICK_MIDDLE", "start_tick": 1}})
+
+
+def test_a_fall_is_reported_with_the_sync_tick_and_time_it_happened(ctl):
+    """Drives that let go (DISABLE) drop the HHEA; the status says when it first fell, and that
+    stays as the run goes on."""
+    ctl.start()
+    for _ in range(5):
+        ctl.sync()
+    assert ctl.host.status()["fall_at"] is None
+    fell_at = None
+    for _ in range(150):
+        ctl.sync(commands=False)
+        for j in JOINTS:
+            ctl.command(j, JointMode.DISABLE, 0.0, 0.0)
+        if fell_at is None and ctl.host.patient.fall:
+            fell_at = (ctl.tick, round(ctl.host.patient.t, 3))
+    status = ctl.host.status()
+    assert status["fall"] and fell_at is not None, status["fall"]
+    assert status["fall_at"] == {"sync_tick": fell_at[0], "sim_time_s": fell_at[1]}
+    assert status["fall_at"]["sync_tick"] < ctl.tick

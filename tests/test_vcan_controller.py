@@ -180,7 +180,8 @@ def _check_walk(summary: dict, final: dict, cycles: int, node_errors: set[str] =
     assert summary["final_state"] not in ("FAULT", "HOLD")
     assert summary["receiver"]["rejected"] == 0 and summary["receiver"]["lost"] == 0
     assert summary["send_failures"] == 0
-    assert final["fall"] is None, final["fall"]
+    # when: during the walk (a SYNC tick within the controller's) or after the controller stopped
+    assert final["fall"] is None, (final["fall"], final["fall_at"], f"the controller ran {summary['ticks']} ticks")
     assert {n["nmt"] for n in final["nodes"].values()} == {"OPERATIONAL"}
     assert {n["error"] for n in final["nodes"].values()} <= node_errors
     assert final["receiver"]["rejected"] == 0 and final["receiver"]["lost"] == 0

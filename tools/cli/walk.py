@@ -227,7 +227,8 @@ def _walk_two_processes(args: argparse.Namespace, cfg: Any, policy: Any, status:
             if row["fall"] and not outcome.fell:
                 outcome.fell, outcome.fall_reason = True, row["fall"]
     outcome.sim_time_s = report.get("sim_time_s", outcome.sim_time_s)
-    return outcome, {"pid": nodes.pid, "syncs": report.get("syncs"), "receiver": report.get("receiver"), "fall": report.get("fall")}
+    return outcome, {"pid": nodes.pid, "syncs": report.get("syncs"), "receiver": report.get("receiver"), "fall": report.get("fall"),
+                     "fall_at": report.get("fall_at")}
 
 
 def _wait_for_boot_ups(cfg: Any, nodes: subprocess.Popen, timeout_s: float = 120.0) -> None:
