@@ -36,10 +36,13 @@ system-deps:
 demo: venv system-deps
 	$(AIDER) walk --steps 10 --render build/walk
 
+# Three stages: the host tests on every core; the real-time walks alone (beside another worker
+# they overrun on a 2-core machine); the vcan tests in the sandbox. Each lists its slowest tests,
+# where the suite's time goes (it must stay under 20 minutes on a 2-core machine).
 test: venv system-deps
-	$(PY) -m pytest -m "not vcan and not realtime" -n auto
-	$(PY) -m pytest -m realtime -p no:cacheprovider
-	tools/vcan-run -- $(PY) -m pytest -m vcan -p no:cacheprovider
+	$(PY) -m pytest -m "not vcan and not realtime" -n auto --durations=8
+	$(PY) -m pytest -m realtime -p no:cacheprovider --durations=8
+	tools/vcan-run -- $(PY) -m pytest -m vcan -p no:cacheprovider --durations=8
 
 # Regenerate the protocol documentation from the DBC (a test fails when it is stale).
 docs: venv
