@@ -207,6 +207,9 @@ class GaitConfig:
     stalled_lean_s: float = field_spec(doc="A lean still for this long ...", unit="s", min=0.1, max=1e9)
     stalled_lean_lead_m: float = field_spec(doc="... with the CoM this far past the stance ankle starts the swing.", unit="m", min=0.0, max=0.3)
     still_speed_m_s: float = field_spec(doc="A CoM slower than this counts as still (stalled lean).", unit="m/s", min=0.0, max=0.5)
+    press_stick_cost: float = field_spec(
+        doc="Under the controller, a lean at rest with a stick lighter than swing_trigger_stick_n for stalled_lean_s: "
+            "the patient presses on the sticks, their share of the load this much cheaper (1: as before).", min=1e-4, max=1.0)
     stick_force_comfort_n: float = field_spec(doc="The patient leans no further while a stick carries more.", unit="N", min=10.0, max=2000.0)
     swing_trigger_stick_n: float = field_spec(doc="Both sticks above this load let the scripted gait swing.", unit="N", min=0.0, max=1000.0)
     stick_planted_n: float = field_spec(doc="A placed stick carrying this much is planted.", unit="N", min=1.0, max=500.0)

@@ -151,6 +151,7 @@ class Walker:
         self.next_swing = "r"
         self.stance_feet = {"l": True, "r": True}
         self.lean_goal_x = 0.0
+        self.lean_rest_s = 0.0  # how long the lean has rested at its goal with a stick light (see patient_update)
         self.steps: list[StepRecord] = []
         self._next_step = StepRecord(index=-1, leg="", start_s=0.0)  # the step in the making, until its swing starts
         self.margin = math.inf
@@ -247,6 +248,7 @@ class Walker:
                 else:
                     tips_x = float(np.mean([self.tip_point(side)[0] for side in SIDES]))
                     self.lean_goal_x = tips_x - s.lean_behind_sticks_m
+                    self.lean_rest_s = 0.0
                     if self.scripted_exo:
                         # The scripted gait's patient also leans past the stance foot: a swing that
                         # starts with the CoM over (or behind) the stance heel tips the body
@@ -259,6 +261,13 @@ class Walker:
             sticks = reading.stick_force_n
             step = s.lean_speed_m_s * dt
             comfortable = max(sticks) < s.stick_force_comfort_n
+            if self.phase is Phase.LEAN and not self.scripted_exo:
+                # A lean at rest on the feet alone (the passive ankles' springs carry the CoM over
+                # the soles; the trailing leg straight, the hips go no farther), a stick carrying
+                # less than a swing wants: the exoskeleton waits for the sticks, so the patient
+                # presses on them (control(): the sticks' share made cheaper), docs/SIM.md item 23.
+                resting = abs(self.kin.com_velocity[0]) < s.still_speed_m_s and min(sticks) < s.swing_trigger_stick_n
+                self.lean_rest_s = self.lean_rest_s + dt if resting else 0.0
             if not self.scripted_exo and comfortable:
                 # The legs may carry the body toward the goal faster than the patient would: it
                 # goes along, up to its goal (past it, it holds the body back).
@@ -394,8 +403,12 @@ class Walker:
         contacts = [
             Contact(f"foot_{f}", self.ankle_idx[f], kin.joint_origin[self.ankle_idx[f]].copy(), 1e-4, lateral) for f in feet
         ]
+        pressing = self.phase is Phase.LEAN and self.lean_rest_s >= s.stalled_lean_s
         for t in tips:
-            cost = 4e-4 * (1.0 + 400.0 * (self.unloading[t] / s.unload_time_s) ** 2) if t in self.unloading else 4e-4
+            if t in self.unloading:
+                cost = 4e-4 * (1.0 + 400.0 * (self.unloading[t] / s.unload_time_s) ** 2)
+            else:
+                cost = 4e-4 * s.press_stick_cost if pressing else 4e-4
             contacts.append(Contact(f"tip_{t}", self.forearm_idx[t], self.tip_point(t), cost))
         # A stance foot's spring acts on its shank with minus the ankle torque about the ankle axis.
         ankle = self.cfg.model.joints.ankle

@@ -23,6 +23,7 @@ from controller.patients import load_patient, restore_learner
 from controller.policy import StepRecord
 from controller.telemetry import FIELDS, SCHEMA_VERSION, TelemetryLog, read_log
 from protocol.enums import GaitState
+from protocol.catalog import TICK_MS
 from tools.cli import main
 from tools.pipeline import WalkOutcome, walk
 
@@ -84,6 +85,25 @@ def test_two_gait_cycles_walk_without_a_fall_and_estimate_the_com_ratio_within_t
     summary = outcome.summary()
     json.dumps(summary, allow_nan=False)
     assert summary["cycles_completed"] == 2 and summary["steps_completed"] == 4 and summary["falls"] == 0
+
+
+def test_a_lean_at_rest_with_the_sticks_light_presses_on_them_and_the_step_starts():
+    """Seed 0's fifth step: the lean comes to rest on the feet (the CoM over the soles, the
+    trailing leg straight) with the sticks carrying 5-10 N, below what the controller needs to
+    swing. The patient presses on the sticks (docs/SIM.md item 23) and the swing starts; before,
+    it started 17.8 s later when sensor noise lifted both sticks past the threshold."""
+    pressed = []
+
+    def on_tick(result, core, host):
+        if host.patient.lean_rest_s >= host.patient.s.stalled_lean_s:
+            pressed.append(result.tick)
+
+    outcome = walk(BASE, cycles=3, seed=0, mode="sagittal", on_tick=on_tick)
+    assert_walked(outcome, 3)
+    assert pressed, "no lean came to rest: the case this test is about did not happen"
+    press_step = next(s for s in outcome.steps if s.start_tick <= pressed[0] < s.swing_tick)
+    assert (press_step.swing_tick - pressed[0]) * TICK_MS / 1000 < 1.0  # pressing loads the sticks at once
+    assert max(s.swing_tick - s.start_tick for s in outcome.steps) * TICK_MS / 1000 < 10.0
 
 
 def test_a_walk_is_deterministic_for_its_seed(walked, one_cycle):
