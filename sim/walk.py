@@ -151,7 +151,7 @@ class Walker:
         self.next_swing = "r"
         self.stance_feet = {"l": True, "r": True}
         self.lean_goal_x = 0.0
-        self.lean_rest_s = 0.0  # how long the lean has rested at its goal with a stick light (see patient_update)
+        self.lean_rest_s = 0.0  # how long the lean has been at rest with a stick light (see patient_update)
         self.steps: list[StepRecord] = []
         self._next_step = StepRecord(index=-1, leg="", start_s=0.0)  # the step in the making, until its swing starts
         self.margin = math.inf
