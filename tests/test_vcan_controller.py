@@ -265,8 +265,8 @@ def _stall_evidence(summary: dict, final: dict, log: Path, tick: int, cause: str
 def test_controller_walks_five_gait_cycles_in_real_time_as_two_processes(interface, request, tmp_path):
     """Both processes on their own 20 ms clocks walk 5 gait cycles, over vcan0 in the sandbox and
     over UDP multicast on the host. A walk stopped by a lost node, a lost sensor or overruns is
-    tried again (at most 3 walks) only when a stall measured by either process explains the stop;
-    any other stop fails. Three walks all stopped by stalls skip, naming them: a real-time walk
+    tried again (at most RT_ATTEMPTS walks) only when a stall measured by either process explains the stop;
+    any other stop fails. Walks all stopped by stalls skip, naming them: a real-time walk
     cannot be shown on a machine that does not give the CPU.
 
     Over vcan0, a fall, a stick let go in a swing, or a walk that makes no progress, is the open

@@ -213,6 +213,8 @@ def _sync_ticks(decoded: list[Decoded | None]) -> list[int]:
 
 
 ATTEMPTS = 2
+#: the controller's stops that a stall of the sandbox's guest makes (lost statuses, overruns)
+STALL_STOPS = ("NODE_LOST(", "SENSOR_LOST(", "OVERRUN(")
 SECOND_SWING_S = 120  # a hang guard: the second swing came 10-25 s after the controller's start in the sandbox
 
 
@@ -238,7 +240,7 @@ def _mid_swing(vcan0: str, tmp: Path, name: str, nodes_extra: tuple[str, ...] = 
     that point (in the sandbox a stall of the guest, whose one CPU the busy host shares, makes
     overruns or missing statuses: HOLD or FAULT, as designed; once the walk stalled in double
     support) measures nothing yet: it is tried again with new processes, ATTEMPTS times in all."""
-    reasons = []
+    reasons, stalls = [], 0
     for attempt in range(ATTEMPTS):
         log = tmp / f"{name}-{attempt}.log"
         nodes = ctl = None
@@ -251,7 +253,9 @@ def _mid_swing(vcan0: str, tmp: Path, name: str, nodes_extra: tuple[str, ...] = 
                     _wait(tail, _Swings(2), "the second swing", (nodes, ctl), SECOND_SWING_S, _NotWalking)
                     _wait(tail, _Count({SYNC_ID}, 30), "0.6 s into the swing", (nodes, ctl))
                 except _NotWalking as e:
-                    reasons.append(f"attempt {attempt + 1}: {e}: {_why(ctl)}")
+                    why = _why(ctl)
+                    stalls += bool(why) and all(w.split(": ", 2)[-1].startswith(STALL_STOPS) for w in why)
+                    reasons.append(f"attempt {attempt + 1}: {e}: {why}")
                     _reap(nodes, ctl)
                     continue
                 if reasons:
@@ -261,6 +265,8 @@ def _mid_swing(vcan0: str, tmp: Path, name: str, nodes_extra: tuple[str, ...] = 
         except BaseException:
             _reap(nodes, ctl)
             raise
+    if stalls == ATTEMPTS:  # every walk stopped by a stall of the guest: the machine gave no CPU, nothing measured
+        pytest.skip(f"every walk was stopped by a stall of the machine before the fault: {reasons}")
     pytest.fail(f"the walk never reached its second swing undisturbed: {reasons}")
 
 
