@@ -49,7 +49,7 @@ from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver
 from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
 from tests.conftest import ROOT
-from tests.test_vcan_controller import AIDER, _decode_capture, _recorded, _transitions
+from tests.test_vcan_controller import AIDER, STALL_STOPS, _decode_capture, _recorded, _transitions
 from tests.test_vcan_trace import PROBE_ID, candump
 
 pytestmark = pytest.mark.vcan
@@ -213,8 +213,6 @@ def _sync_ticks(decoded: list[Decoded | None]) -> list[int]:
 
 
 ATTEMPTS = 2
-#: the controller's stops that a stall of the sandbox's guest makes (lost statuses, overruns)
-STALL_STOPS = ("NODE_LOST(", "SENSOR_LOST(", "OVERRUN(")
 SECOND_SWING_S = 120  # a hang guard: the second swing came 10-25 s after the controller's start in the sandbox
 
 
