@@ -494,6 +494,7 @@ class NodesHost:
             "sensor_saturations": dict(self.stats.saturated),
             "fall": fall,
             "fall_at": self.fall_at,
+            "patient": self.patient.patient_state(),
         }
 
     def truth(self) -> dict[str, Any]:

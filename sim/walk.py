@@ -179,11 +179,18 @@ class Walker:
         self.stick_queue = list(SIDES) if self.together else sorted(SIDES, key=lambda s: self.tip_point(s)[0])
         self._set_phase(Phase.SHIFT)
 
+    def _lifting(self) -> list[str]:
+        """The stick(s) the patient lifts next."""
+        return self.stick_queue[:2] if self.together else self.stick_queue[:1]
+
+    def _remaining_tips(self) -> list[str]:
+        """The planted sticks that stay down when the next stick(s) lift."""
+        lifting = self._lifting()
+        return [side for side in SIDES if side not in lifting and self.planted[side]]
+
     def _shift_target(self) -> np.ndarray:
         """Where the CoM must be before the next stick(s) lift: inside the support that remains."""
-        lifting = self.stick_queue[:2] if self.together else self.stick_queue[:1]
-        remaining_tips = [s for s in SIDES if s not in lifting and self.planted[s]]
-        ankles, tip_xy = self._support_points(remaining_tips)
+        ankles, tip_xy = self._support_points(self._remaining_tips())
         lo, hi = ankles[:, 0].min(), ankles[:, 0].max()
         x = float(self.kin.com[0])
         m = self.s.shift_margin_m
@@ -201,6 +208,16 @@ class Walker:
         best = xs[ok][np.argmin(np.abs(xs[ok] - x))] if ok.any() else xs[np.argmax(margins)]
         return np.array([best, y])
 
+    def patient_state(self) -> dict:
+        """Where the patient is in its gait, for a report (a walk that makes no progress says whom it
+        waits for): its phase and how long it has been in it, the sticks it has still to move, and
+        in the weight shift how far the CoM is inside the support that stays when they lift
+        (the patient lifts at ``shift_margin_m / 2``)."""
+        state = {"phase": self.phase.value, "phase_s": round(self.phase_t, 2), "sticks_to_move": list(self.stick_queue)}
+        if self.phase is Phase.SHIFT:
+            state["shift_margin_m"] = round(self._support_margin(tips=self._remaining_tips()), 4)
+        return state
+
     def patient_update(self, reading) -> None:
         s, dt = self.s, self.dt_control
         self.phase_t += dt
@@ -214,11 +231,10 @@ class Walker:
             self.com_target += np.clip(target - self.com_target, -s.shift_speed_m_s * dt, s.shift_speed_m_s * dt)
             # The patient lifts a stick only once the CoM is where the remaining support holds it;
             # a patient who cannot get there waits (the walk stalls rather than falls).
-            lifting = self.stick_queue[:2] if self.together else self.stick_queue[:1]
-            margin = self._support_margin(tips=[side for side in SIDES if side not in lifting and self.planted[side]])
+            margin = self._support_margin(tips=self._remaining_tips())
             settled = margin >= s.shift_margin_m / 2 and np.linalg.norm(self.kin.com_velocity[:2]) < s.shift_still_speed_m_s
             if settled and self.phase_t > s.shift_min_s:
-                for side in lifting:
+                for side in self._lifting():
                     self.unloading[side] = 0.0
                 self._set_phase(Phase.STICKS)
             return

@@ -8,6 +8,7 @@ back on the bus, decoded by an independent receiver.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import can
 import numpy as np
@@ -45,6 +46,7 @@ class ScriptedController:
             self.bus.shutdown()
             raise
         self.tick = -1
+        self.gait_state = GaitState.STAND  # what this controller's heartbeat says
         self.host.boot()
         self.boot_frames = self.frames()
 
@@ -85,7 +87,7 @@ class ScriptedController:
         for msg, result in self.frames():  # by message name, accepted or not
             got.setdefault(self.codec.spec(msg.arbitration_id).name, []).append((msg, result))
         if heartbeat and self.tick % 5 == 0:
-            self.send("CONTROLLER_HEARTBEAT", gait_state=int(GaitState.STAND))
+            self.send("CONTROLLER_HEARTBEAT", gait_state=int(self.gait_state))
         if commands:
             for j in JOINTS:
                 if track and j in track:
@@ -611,6 +613,29 @@ def test_a_fault_naming_an_unknown_message_names_the_key():
 
     with pytest.raises(FaultConfigError, match=r"nodes.faults.y.message: unknown message 'STICK_MIDDLE'"):
         ScriptedController("nodes-badfault2", faults={"y": {"kind": "drop", "node": "LEFT_HIP", "message": "STICK_MIDDLE", "start_tick": 1}})
+
+
+def test_the_status_says_where_the_patient_is_in_its_gait(ctl):
+    """Standing, the patient settles; once the controller's heartbeat says it walks, it shifts its
+    CoM before the first stick lifts, and the status gives the margin that decides the lift (a walk
+    that makes no progress then says whom it waits for)."""
+    ctl.start()
+    for _ in range(10):
+        ctl.sync()
+    standing = ctl.host.status()["patient"]
+    assert standing["phase"] == "settle" and "shift_margin_m" not in standing
+    ctl.gait_state = GaitState.DOUBLE_SUPPORT
+    shifting = []
+    for _ in range(60):
+        ctl.sync()
+        shifting.append(ctl.host.status()["patient"])
+    shifting = [p for p in shifting if p["phase"] == "shift"]
+    assert shifting, "the patient never began its weight shift"
+    assert sorted(shifting[0]["sticks_to_move"]) == ["l", "r"]
+    assert [p["phase_s"] for p in shifting] == sorted(p["phase_s"] for p in shifting)
+    assert all(math.isfinite(p["shift_margin_m"]) for p in shifting)
+    walker = ctl.host.patient
+    assert shifting[-1]["shift_margin_m"] == round(walker._support_margin(tips=walker._remaining_tips()), 4)
 
 
 def test_a_fall_is_reported_with_the_sync_tick_and_time_it_happened(ctl):

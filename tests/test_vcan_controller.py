@@ -289,7 +289,8 @@ def test_controller_walks_five_gait_cycles_in_real_time_as_two_processes(interfa
         if not stops:
             if summary["steps_completed"] < 2 * RT_CYCLES and in_sandbox:
                 pytest.xfail(f"the open real-time gait defect (docs/CONTROLLER.md): attempt {attempt} made no progress, "
-                             f"{summary['steps_completed']} steps in {summary['ticks']} ticks; earlier attempts: {stalled}")
+                             f"{summary['steps_completed']} steps in {summary['ticks']} ticks, the patient {final['patient']}; "
+                             f"earlier attempts: {stalled}")
             break
         tick, _, _, cause = stops[0]
         if cause.startswith(GAIT_DEFECT_STOPS) and in_sandbox:

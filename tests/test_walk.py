@@ -206,6 +206,16 @@ def test_a_walk_that_runs_out_of_time_is_a_stall_not_a_fall():
     summary = outcome.summary()
     json.dumps(summary, allow_nan=False)  # no step: nulls, not NaN
     assert summary["mean_stick_force_n"] is None and summary["step_length_m"]["mean"] is None
+    # whom the walk waits for: the patient moves its sticks (seed 0: 0.4 s after its 0.6 s settle)
+    assert summary["patient"] == outcome.patient and outcome.patient["phase"] == "sticks"
+
+
+def test_a_stalled_walk_says_where_the_patient_stood(capsys):
+    """Stopped 0.1 s into the first weight shift (seed 0), the patient still waits for its CoM to
+    come 0.015 m inside the support that stays when the first stick lifts."""
+    assert main(["walk", "--steps", "1", "--max-time", "0.7", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "no fall (stalled: the patient in its shift for 0.1 s, CoM 0.013 m inside the support left for the lift)" in out
 
 
 def test_a_walk_that_the_controller_holds_ends_there_with_the_cause():
@@ -283,7 +293,7 @@ def test_the_telemetry_log_has_its_schema_and_the_gait_fields_filled_during_swin
 
 SUMMARY_FIELDS = {
     "mode", "seed", "policy", "theta", "cycles_asked", "cycles_completed", "steps_completed", "falls", "fall_reason",
-    "fault", "hold", "stalled", "final_state", "mean_stick_force_n", "mean_arm_torque_nm", "step_length_m", "placed_step_m", "x_ratio_mae", "x_ratio_samples",
+    "fault", "hold", "stalled", "final_state", "patient", "mean_stick_force_n", "mean_arm_torque_nm", "step_length_m", "placed_step_m", "x_ratio_mae", "x_ratio_samples",
     "sim_time_s", "wall_time_s", "ticks", "receiver", "timing", "steps", "bus", "telemetry",
 }
 

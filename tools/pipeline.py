@@ -49,6 +49,7 @@ class WalkOutcome:
     hold: str | None = None  # the cause of the controller's protective stop (HOLD, latched until a reset)
     stalled: bool = False  # the time ran out before the cycles were walked
     final_state: str = ""
+    patient: dict[str, Any] | None = None  # the simulated patient's place in its gait at the end (whom a stall waits for)
     sim_time_s: float = 0.0
     wall_time_s: float = 0.0
     ticks: int = 0
@@ -95,6 +96,7 @@ class WalkOutcome:
             "hold": self.hold,
             "stalled": self.stalled,
             "final_state": self.final_state,
+            "patient": self.patient,
             "mean_stick_force_n": _round(self.mean_stick_force_n, 2),
             "mean_arm_torque_nm": _round(self.mean_arm_torque_nm, 2),
             "step_length_m": _spread(lengths),
@@ -221,7 +223,7 @@ def walk(
                 fallen=lambda: host.patient.fall,
                 on_tick=None if on_tick is None else (lambda r, c: on_tick(r, c, host)), stall_s=stall_s,
             )
-            outcome.sim_time_s = host.patient.t
+            outcome.sim_time_s, outcome.patient = host.patient.t, host.patient.patient_state()
             # the simulation's own steps (foot contacts): the six arm joints' absolute torques, summed
             outcome.arm_torques_nm = [st.mean_arm_torque_nm for st in host.patient.steps if st.landed]
         finally:

@@ -153,10 +153,20 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _waiting(patient: dict[str, Any] | None) -> str:
+    """Where the patient stood when the walk stalled: its phase and for how long, and in the weight
+    shift the CoM's margin that its next stick lift waits for."""
+    if not patient:
+        return ""
+    margin = f", CoM {patient['shift_margin_m']} m inside the support left for the lift" if "shift_margin_m" in patient else ""
+    return f": the patient in its {patient['phase']} for {patient['phase_s']} s{margin}"
+
+
 def _summary_text(s: dict[str, Any]) -> str:
     lengths, placed = s["step_length_m"], s["placed_step_m"]
     fall = f"fell: {s['fall_reason']}" if s["falls"] else ("no fall" + (
-        f" (FAULT {s['fault']})" if s["fault"] else f" (HOLD {s['hold']})" if s["hold"] else " (stalled)" if s["stalled"] else ""))
+        f" (FAULT {s['fault']})" if s["fault"] else f" (HOLD {s['hold']})" if s["hold"] else
+        f" (stalled{_waiting(s['patient'])})" if s["stalled"] else ""))
     text = (
         f"{s['mode']} walk, {s['policy']} step length{'' if s['theta'] is None else ' theta ' + str(s['theta'])}, "
         f"seed {s['seed']}: {s['cycles_completed']} of {s['cycles_asked']} gait cycles ({s['steps_completed']} steps), {fall}\n"
@@ -227,6 +237,7 @@ def _walk_two_processes(args: argparse.Namespace, cfg: Any, policy: Any, status:
             if row["fall"] and not outcome.fell:
                 outcome.fell, outcome.fall_reason = True, row["fall"]
     outcome.sim_time_s = report.get("sim_time_s", outcome.sim_time_s)
+    outcome.patient = report.get("patient")
     return outcome, {"pid": nodes.pid, "syncs": report.get("syncs"), "receiver": report.get("receiver"), "fall": report.get("fall"),
                      "fall_at": report.get("fall_at")}
 
