@@ -237,3 +237,49 @@ def test_a_lockstep_tick_reads_at_most_200_frames_per_20_ms_it_waits(gap_us, rea
     loop._drain(0, clock.now_ns() + 2_000_000_000, {"LEFT_HIP"})
     assert loop.report.drained_max == read
     assert loop.rx.stats.rejected_total == read and loop.report.timeouts == 1
+
+
+class _SharedCpuClock:
+    """Manual time that passes with this thread on the CPU (``work``) or without it (``lose``:
+    another process or the host had it; sleeping is off the CPU too)."""
+
+    def __init__(self) -> None:
+        self.now, self.cpu = 0, 0
+
+    def now_ns(self) -> int:
+        return self.now
+
+    def cpu_ns(self) -> int:
+        return self.cpu
+
+    def sleep_until(self, deadline_ns: int) -> None:
+        self.now = max(self.now, deadline_ns)
+
+    def work(self, ns: int) -> None:
+        self.now += ns
+        self.cpu += ns
+
+    def lose(self, ns: int) -> None:
+        self.now += ns
+
+
+@pytest.mark.parametrize(("ms_off", "ms_on", "stalled"), [(25, 1, True), (1, 25, False)])
+def test_a_real_time_tick_that_overran_off_the_cpu_is_a_stall(ms_off, ms_on, stalled):
+    """A tick that overran its 20 ms while another process had the CPU is reported as a stall (the
+    real-time walk tests retry a walk that such overruns stopped); one that overran by its own work
+    is not."""
+    from controller.loop import RealtimeLoop
+
+    clock = _SharedCpuClock()
+    with virtual_bus("loop-overrun-stall") as bus:
+        loop = RealtimeLoop(ControllerCore(BASE.controller), bus, clock=clock)
+        loop.step()  # tick 0, no node up: nothing to wait for
+        clock.lose(ms_off * 1_000_000)
+        clock.work(ms_on * 1_000_000)
+        assert loop.step().tick == 2  # tick 1 skipped
+    assert loop.timer.overruns == 1 and loop.timer.skipped == 1
+    if stalled:  # tick 0 was not run for its 25 ms, its sync window's wait and its 1 ms of work aside
+        [(tick, ms)] = loop.report.stalls
+        assert tick == 0 and ms_off <= ms < ms_off + ms_on + 2
+    else:
+        assert loop.report.stalls == []
