@@ -86,27 +86,45 @@ def test_a_frozen_node_is_lost_within_three_ticks(rig):
 def test_real_time_controller_and_real_time_nodes_hold_the_hhea_up(request):
     """Both sides on the monotonic clock: the nodes in a thread with their own 20 ms timer, the
     controller on absolute deadlines. Nothing here asserts a time: only that the protocol keeps
-    up (no watchdog, no lost node) and the tick statistics are reported."""
+    up (no watchdog, no lost node) and the tick statistics are reported. A run stopped by a stall
+    of the machine is tried again (at most 3 runs; a 100 ms stall once held it by an overrun)."""
     from controller.loop import RealtimeLoop
     from nodes.host import running_in_thread
 
-    channel = "loop-realtime"
-    cfg = with_overrides(BASE, {"bus.channel": channel})
-    node_bus = virtual_bus(channel)
-    ctl_bus = virtual_bus(channel)
-    host = NodesHost(cfg, node_bus, lockstep=False, seed=4)
-    try:
-        with running_in_thread(host):
-            loop = RealtimeLoop(ControllerCore(cfg.controller), ctl_bus)
-            states = [loop.step().state for _ in range(100)]
-    finally:
-        host.close()
-        node_bus.shutdown()
-        ctl_bus.shutdown()
+    stalled = []
+    for attempt in range(1, 4):
+        channel = f"loop-realtime-{attempt}"
+        cfg = with_overrides(BASE, {"bus.channel": channel})
+        node_bus = virtual_bus(channel)
+        ctl_bus = virtual_bus(channel)
+        host = NodesHost(cfg, node_bus, lockstep=False, seed=4)
+        try:
+            with running_in_thread(host):
+                loop = RealtimeLoop(ControllerCore(cfg.controller), ctl_bus)
+                states = [loop.step().state for _ in range(100)]
+                nodes = host.status()
+        finally:
+            host.close()
+            node_bus.shutdown()
+            ctl_bus.shutdown()
+        if not _stopped_by_a_stall(loop, nodes):
+            break
+        stalled.append(f"{loop.report.events[-1]}, stalls {loop.report.stalls} {nodes['stalls']}")
+    else:
+        pytest.skip("every real-time run was stopped by a stall of the machine: " + "; ".join(stalled))
     assert states[-1] == GaitState.STAND and GaitState.FAULT not in states, loop.report.events
     assert loop.rx.stats.rejected_total == 0
     summary = loop.stats.summary()
     assert summary["ticks"] == 100 and summary["work"]["max_us"] > 0
+
+
+def _stopped_by_a_stall(loop, nodes: dict) -> bool:
+    """The run's first FAULT or HOLD is one a stall gives a healthy run (a lost node, a lost sensor,
+    overruns) and either side measured a stall: this VM's hypervisor takes a CPU away in bursts
+    (tests/test_vcan_controller.py), which a real-time test retries rather than fails on."""
+    stops = [e for e in loop.report.events if "-> FAULT:" in e or "-> HOLD:" in e]
+    return bool(stops) and any(c in stops[0] for c in ("NODE_LOST", "SENSOR_LOST", "OVERRUN")) \
+        and bool(loop.report.stalls or [s for s in nodes["stalls"] if s[0] >= 0])
 
 
 def _real_time_walk(cycles: int, channel: str):
@@ -156,9 +174,7 @@ def test_real_time_controller_walks_two_gait_cycles_with_real_time_nodes():
         why = (f"events {loop.report.events[-4:]}, controller overruns {timing['overruns']} (skipped {timing['skipped_ticks']}), "
                f"nodes overruns {nodes['overruns']}, status read-window misses {loop.report.timeouts}, "
                f"stalls {loop.report.stalls} {nodes['stalls']}")
-        stops = [e for e in loop.report.events if "-> FAULT:" in e or "-> HOLD:" in e]
-        if fall is None and stops and any(c in stops[0] for c in ("NODE_LOST", "SENSOR_LOST", "OVERRUN")) \
-                and (loop.report.stalls or [s for s in nodes["stalls"] if s[0] >= 0]):
+        if fall is None and _stopped_by_a_stall(loop, nodes):
             stalled.append(why)
             continue
         break
