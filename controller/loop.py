@@ -66,7 +66,7 @@ class LockstepLoop:
         self.report = LoopReport()
         self.tick = -1
         self._idle_ns = 0  # time of the tick spent waiting for (or running) the nodes
-        self._cpu0_ns = 0  # the thread's CPU time when the last tick started
+        self._ran_ns = 0  # the thread's CPU time in the last tick
         catalog = self.codec.catalog
         self._status_ids = {catalog.message("JOINT_STATUS", n).frame_id: n for n in core.node_names}
 
@@ -141,7 +141,7 @@ class LockstepLoop:
         one tick ``k`` that started at ``start_ns``."""
         self.tick = k
         self._idle_ns = 0
-        cpu0 = self._cpu0_ns = self.clock.cpu_ns()
+        cpu0 = self.clock.cpu_ns()
         self._send("SYNC", (k,))
         t0 = self.clock.now_ns()
         if first_read_ns > t0:
@@ -158,7 +158,8 @@ class LockstepLoop:
         elapsed = self.clock.now_ns() - start_ns
         work = elapsed - self._idle_ns
         self.stats.record(lateness_ns, work, elapsed)
-        self._stall(k, work - (self.clock.cpu_ns() - cpu0))  # not run while working (a lower bound: reads count as waiting)
+        self._ran_ns = self.clock.cpu_ns() - cpu0
+        self._stall(k, work - self._ran_ns)  # not run while working (a lower bound: reads count as waiting)
         if self.telemetry is not None:
             self.telemetry.put(self._record(result, work, lateness_ns))
         return result
@@ -227,19 +228,19 @@ class RealtimeLoop(LockstepLoop):
 
     def step(self) -> TickResult:
         skipped_before = self.timer.skipped
-        ended_ns, cpu_ns = self.clock.now_ns(), self.clock.cpu_ns()  # the last tick's work is done
+        ended_ns = self.clock.now_ns()  # of the last tick and what its caller did after it
         k = self.timer.wait()
         start = self.clock.now_ns()
         self.stats.skipped = self.timer.skipped
         if self.timer.skipped > skipped_before:
             self.core.overran(k, self.timer.skipped - skipped_before)
-            # The last tick, on the CPU for under half a period from its deadline to its end,
-            # overran because the machine did not run it: a stall, shorter than STALL_NS but an
-            # overrun all the same (this VM's hypervisor takes the CPU for 20-40 ms, and three such
-            # in 50 ticks are the overrun budget's HOLD). An overrun of the controller's own work is none.
-            ran = cpu_ns - self._cpu0_ns
-            if ran < self.tick_ns // 2:
-                self._stall(self.tick, ended_ns - self.timer.deadline_ns(self.tick) - ran, least_ns=0)
+            # The last tick, on the CPU for under half a period (its thread's CPU time; what the
+            # caller does between ticks is microseconds), overran because the machine did not run
+            # it: a stall, shorter than STALL_NS but an overrun all the same (this VM's hypervisor
+            # takes the CPU for 20-40 ms, and three such in 50 ticks are the overrun budget's HOLD).
+            # An overrun of the controller's own work is none.
+            if self._ran_ns < self.tick_ns // 2:
+                self._stall(self.tick, ended_ns - self.timer.deadline_ns(self.tick) - self._ran_ns, least_ns=0)
         lateness = self.timer.last_lateness_ns
         self._stall(k, lateness)
         # With no node operational (booting, or all lost) no answer is due: read what came, do not wait.

@@ -287,11 +287,19 @@ def test_a_real_time_tick_that_overran_off_the_cpu_is_a_stall(ms_off, ms_on, sta
     from controller.loop import RealtimeLoop
 
     clock = _SharedCpuClock()
+    core = ControllerCore(BASE.controller)
+    tick = core.tick
+
+    def slow_tick(k):  # tick 0's update: the CPU lost, then the controller's own work
+        if k == 0:
+            clock.lose(ms_off * 1_000_000)
+            clock.work(ms_on * 1_000_000)
+        return tick(k)
+
+    core.tick = slow_tick
     with virtual_bus("loop-overrun-stall") as bus:
-        loop = RealtimeLoop(ControllerCore(BASE.controller), bus, clock=clock)
+        loop = RealtimeLoop(core, bus, clock=clock)
         loop.step()  # tick 0, no node up: nothing to wait for
-        clock.lose(ms_off * 1_000_000)
-        clock.work(ms_on * 1_000_000)
         assert loop.step().tick == 2  # tick 1 skipped
     assert loop.timer.overruns == 1 and loop.timer.skipped == 1
     if stalled:  # tick 0 was not run for its 25 ms, its sync window's wait and its 1 ms of work aside
