@@ -508,11 +508,12 @@ def test_restarted_controller_leaves_fault_only_on_the_operators_reset_and_does_
     assert fsm_reset - first_reset >= 25  # I4: the nodes healthy for 25 ticks first
     assert s["steps"] == [] and set(_commands(decoded)) == {"HOLD"}  # never walks on its own
     # Then STAND to the end. In the sandbox a stall of the guest (its one CPU shared with the busy
-    # host) can stop the nodes' statuses for 3 ticks or overrun the loop: a later HOLD or FAULT for
-    # that is the design's reaction, and it stays (the one reset is spent); nothing else may follow.
+    # host) can stop the nodes' statuses or a sensor's frames for 3 ticks or overrun the loop (a
+    # SENSOR_LOST seen once, 2026-12-03): a later HOLD or FAULT for that is the design's reaction,
+    # and it stays (the one reset is spent); nothing else may follow.
     later = transitions[2:]
     end = later[0][0] if later else s["ticks"]
-    assert all(t[2] in ("HOLD", "FAULT") and t[3].startswith(("NODE_LOST(", "OVERRUN(", "nodes not healthy")) for t in later), later
+    assert all(t[2] in ("HOLD", "FAULT") and t[3].startswith((*STALL_STOPS, "nodes not healthy")) for t in later), later
     assert end - fsm_reset >= 20, later
     assert s["final_state"] == (later[-1][2] if later else "STAND")
 
