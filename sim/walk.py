@@ -208,6 +208,10 @@ class Walker:
         best = xs[ok][np.argmin(np.abs(xs[ok] - x))] if ok.any() else xs[np.argmax(margins)]
         return np.array([best, y])
 
+    def _shift_margin(self) -> float:
+        """How far the CoM is inside the support that stays when the next stick(s) lift."""
+        return self._support_margin(tips=self._remaining_tips())
+
     def patient_state(self) -> dict:
         """Where the patient is in its gait, for a report (a walk that makes no progress says whom it
         waits for): its phase and how long it has been in it, the sticks it has still to move, and
@@ -215,7 +219,7 @@ class Walker:
         (the patient lifts at ``shift_margin_m / 2``)."""
         state = {"phase": self.phase.value, "phase_s": round(self.phase_t, 2), "sticks_to_move": list(self.stick_queue)}
         if self.phase is Phase.SHIFT:
-            state["shift_margin_m"] = round(self._support_margin(tips=self._remaining_tips()), 4)
+            state["shift_margin_m"] = round(self._shift_margin(), 4)
         return state
 
     def patient_update(self, reading) -> None:
@@ -231,8 +235,7 @@ class Walker:
             self.com_target += np.clip(target - self.com_target, -s.shift_speed_m_s * dt, s.shift_speed_m_s * dt)
             # The patient lifts a stick only once the CoM is where the remaining support holds it;
             # a patient who cannot get there waits (the walk stalls rather than falls).
-            margin = self._support_margin(tips=self._remaining_tips())
-            settled = margin >= s.shift_margin_m / 2 and np.linalg.norm(self.kin.com_velocity[:2]) < s.shift_still_speed_m_s
+            settled = self._shift_margin() >= s.shift_margin_m / 2 and np.linalg.norm(self.kin.com_velocity[:2]) < s.shift_still_speed_m_s
             if settled and self.phase_t > s.shift_min_s:
                 for side in self._lifting():
                     self.unloading[side] = 0.0

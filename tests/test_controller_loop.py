@@ -12,6 +12,7 @@ from controller.loop import LockstepLoop
 from nodes.host import NodesHost
 from protocol.bus import virtual_bus
 from protocol.enums import GaitState
+from tests.test_vcan_controller import STALL_STOPS
 
 BASE = load_config(default_config_path())
 
@@ -123,7 +124,7 @@ def _stopped_by_a_stall(loop, nodes: dict) -> bool:
     overruns) and either side measured a stall: this VM's hypervisor takes a CPU away in bursts
     (tests/test_vcan_controller.py), which a real-time test retries rather than fails on."""
     stops = [e for e in loop.report.events if "-> FAULT:" in e or "-> HOLD:" in e]
-    return bool(stops) and any(c in stops[0] for c in ("NODE_LOST", "SENSOR_LOST", "OVERRUN")) \
+    return bool(stops) and any(c in stops[0] for c in STALL_STOPS) \
         and bool(loop.report.stalls or [s for s in nodes["stalls"] if s[0] >= 0])
 
 

@@ -635,7 +635,7 @@ def test_the_status_says_where_the_patient_is_in_its_gait(ctl):
     assert [p["phase_s"] for p in shifting] == sorted(p["phase_s"] for p in shifting)
     assert all(math.isfinite(p["shift_margin_m"]) for p in shifting)
     walker = ctl.host.patient
-    assert shifting[-1]["shift_margin_m"] == round(walker._support_margin(tips=walker._remaining_tips()), 4)
+    assert shifting[-1]["shift_margin_m"] == round(walker._shift_margin(), 4)
 
 
 def test_a_fall_is_reported_with_the_sync_tick_and_time_it_happened(ctl):
