@@ -151,18 +151,29 @@ class ControllerCore:
 
     # -- input -----------------------------------------------------------------------------------
 
-    def _age(self, frame_id: int, counter: int) -> int:
+    def _age(self, frame_id: int, counter: int, queued: bool = False) -> int:
         """How many SYNCs late a per-SYNC frame is, from its alive counter (FAULTS.md F4, I5).
 
         A node sends each of its per-SYNC frames once per SYNC with the next counter, so an on-time
         frame keeps (SYNC index - counter) mod 16 constant; a lost frame keeps it too (both advance),
-        a frame that comes late raises it by its lateness. The smallest value seen is the on-time one."""
+        a frame that comes late raises it by its lateness. The smallest value seen is the on-time one.
+
+        A ``queued`` frame was already waiting when this tick's SYNC went out, so it answers an
+        earlier SYNC: at least one tick late whatever its counter says. If the counter says on
+        time, the on-time value was learnt from a late frame (a node's first frame that came after
+        its tick's read, or a delay of every node taken for a missed SYNC) and is learnt again from
+        this one. Left uncorrected, that frame's later answers, each read first in the next tick,
+        counted as on time while one tick old, and the tick's own answers waited in the queue for
+        the next tick: the controller ran on one-tick-old data of that node for the rest of the
+        walk (seen in the vcan sandbox, docs/CONTROLLER.md). A late answer that came before the
+        next SYNC is no sign of a missed SYNC (:meth:`_missed_sync`)."""
         lag = (self.syncs - counter) % 16
         base = self._phase.get(frame_id)
-        if base is None or (age := (lag - base) % 16) > MAX_AGE:
-            self._phase[frame_id] = lag
-            return 0
-        if age:
+        age = MAX_AGE + 1 if base is None else (lag - base) % 16
+        if age > MAX_AGE or (queued and age == 0):
+            self._phase[frame_id] = (lag - queued) % 16
+            return int(queued)
+        if age and not queued:
             self._late_now[frame_id] = age
         return age
 
@@ -197,15 +208,16 @@ class ControllerCore:
             if sent == tick - shift:
                 self.latest[name] = (tick, values)
 
-    def receive(self, frame: Decoded, tick: int) -> bool:
-        """One accepted frame from a node, received during ``tick``. A per-SYNC frame (status and
-        sensors) counts for the tick it was sent for, which a late frame is not (:meth:`_age`).
-        Returns False for a late per-SYNC frame (the loop goes on waiting for this tick's)."""
+    def receive(self, frame: Decoded, tick: int, queued: bool = False) -> bool:
+        """One accepted frame from a node, received during ``tick`` (``queued``: read before the
+        tick's SYNC went out). A per-SYNC frame (status and sensors) counts for the tick it was sent
+        for, which a late frame is not (:meth:`_age`). Returns False for a late per-SYNC frame (the
+        loop goes on waiting for this tick's)."""
         spec, v = frame.message, frame.values
         family, sender = spec.family, spec.sender
         if family == "JOINT_STATUS":
             node = self.nodes[sender]
-            sent = tick - self._age(spec.frame_id, frame.counter)
+            sent = tick - self._age(spec.frame_id, frame.counter, queued)
             if sent > node.status_tick:  # never an older sample over a newer one
                 node.status, node.status_tick = v, sent
             return sent == tick
@@ -227,7 +239,7 @@ class ControllerCore:
             if v.error_register != 0:
                 self.pending_faults.append(f"EMCY {v.emcy_code:#06x} from {sender}")
         else:
-            sent = tick - self._age(spec.frame_id, frame.counter)
+            sent = tick - self._age(spec.frame_id, frame.counter, queued)
             if sent > self.latest.get(spec.name, (-(10**9),))[0]:
                 self.latest[spec.name] = (sent, v)
             return sent == tick

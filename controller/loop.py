@@ -132,6 +132,23 @@ class LockstepLoop:
         if not expected <= got:
             self.report.timeouts += 1
 
+    def _read_queued(self, tick: int) -> None:
+        """Before tick ``tick``'s SYNC, what came after the last tick's read: answers to earlier SYNCs,
+        never this tick's (:meth:`ControllerCore._age`), read without waiting (and without pumping a
+        peer in process: its frames come only from what we send), at most ``max_frames``. Across
+        processes the last tick's read ends once its frames are in, so a node's frames that come
+        later wait here rather than in this tick's read, where they were taken for its answers."""
+        recv, receive = self.bus.recv, self.rx.receive
+        for _ in range(self.max_frames):
+            msg = recv(timeout=0.0)
+            if msg is None:
+                return
+            result = receive(msg)
+            if type(result) is not Decoded:
+                self.core.rejected(result, tick)
+            elif result.message.sender != "CONTROLLER":
+                self.core.receive(result, tick, queued=True)
+
     def _expected(self) -> set[str]:
         return {n for n, s in self.core.nodes.items() if s.nmt == NmtState.OPERATIONAL}
 
@@ -142,6 +159,7 @@ class LockstepLoop:
         self.tick = k
         self._idle_ns = 0
         cpu0 = self.clock.cpu_ns()
+        self._read_queued(k)
         self._send("SYNC", (k,))
         t0 = self.clock.now_ns()
         if first_read_ns > t0:

@@ -61,9 +61,12 @@ def _weak_pump(rig: FaultRig) -> Callable[[], None]:
 class FaultRig:
     def __init__(
         self, cfg: Config, *, seed: int = 0, bus_faults: Iterable[BusFault] = (), tick_timeout_s: float = 0.05,
-        mode: str = "sagittal", keep_results: bool = True,
+        mode: str = "sagittal", keep_results: bool = True, answering: bool = False,
     ) -> None:
-        """``keep_results``: keep every tick's result in :attr:`results` (a soak does not)."""
+        """``keep_results``: keep every tick's result in :attr:`results` (a soak does not).
+        ``answering``: the loop reads as across processes (no pump: a tick's read ends once the
+        frames it waits for are in, and what comes after waits for the next tick) and the node
+        boards answer each frame as it is sent, every tick's frames queued at once."""
         channel = f"fault-rig-{next(_channels)}"
         self.cfg = cfg = with_overrides(cfg, {"bus.channel": channel, "sim.mode": mode})
         self.listener = virtual_bus(channel)
@@ -76,8 +79,17 @@ class FaultRig:
             raise
         self.host.boot()
         self.core = ControllerCore(cfg.controller)
+        pump = _weak_pump(self)
+        if answering:
+            send = self.bus.send
+
+            def send_and_answer(msg: can.Message, timeout: float | None = None) -> None:
+                send(msg, timeout)
+                pump()
+
+            self.bus.send = send_and_answer  # type: ignore[method-assign]
         self.loop = LockstepLoop(
-            self.core, self.bus, codec=shared_codec(), pump=_weak_pump(self), tick_timeout_s=tick_timeout_s,
+            self.core, self.bus, codec=shared_codec(), pump=None if answering else pump, tick_timeout_s=tick_timeout_s,
             max_delta_counter=cfg.protocol.max_delta_counter,
         )
         self.oracle = Oracle(self.core, codec=shared_codec())
