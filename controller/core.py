@@ -162,11 +162,9 @@ class ControllerCore:
         earlier SYNC: at least one tick late whatever its counter says. If the counter says on
         time, the on-time value was learnt from a late frame (a node's first frame that came after
         its tick's read, or a delay of every node taken for a missed SYNC) and is learnt again from
-        this one. Left uncorrected, that frame's later answers, each read first in the next tick,
-        counted as on time while one tick old, and the tick's own answers waited in the queue for
-        the next tick: the controller ran on one-tick-old data of that node for the rest of the
-        walk (seen in the vcan sandbox, docs/CONTROLLER.md). A late answer that came before the
-        next SYNC is no sign of a missed SYNC (:meth:`_missed_sync`)."""
+        this one (else its later answers, read before the tick's own, count as on time while a tick
+        old, for the rest of the walk: docs/CONTROLLER.md). A late answer that came before the next
+        SYNC is no sign of a missed SYNC (:meth:`_missed_sync`)."""
         lag = (self.syncs - counter) % 16
         base = self._phase.get(frame_id)
         age = MAX_AGE + 1 if base is None else (lag - base) % 16

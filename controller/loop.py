@@ -69,6 +69,8 @@ class LockstepLoop:
         self._ran_ns = 0  # the thread's CPU time in the last tick
         catalog = self.codec.catalog
         self._status_ids = {catalog.message("JOINT_STATUS", n).frame_id: n for n in core.node_names}
+        # Read before a SYNC: twice a tick's answers (a flood's frames beyond wait for the tick's read)
+        self._queued_max = 2 * sum(len(ids) for ids in core.per_sync.values())
 
     def _send(self, name: str, values: tuple) -> None:
         """Send one frame; a failed send is retried once within the tick (a full transmit queue
@@ -133,13 +135,12 @@ class LockstepLoop:
             self.report.timeouts += 1
 
     def _read_queued(self, tick: int) -> None:
-        """Before tick ``tick``'s SYNC, what came after the last tick's read: answers to earlier SYNCs,
-        never this tick's (:meth:`ControllerCore._age`), read without waiting (and without pumping a
-        peer in process: its frames come only from what we send), at most ``max_frames``. Across
-        processes the last tick's read ends once its frames are in, so a node's frames that come
-        later wait here rather than in this tick's read, where they were taken for its answers."""
+        """Before tick ``tick``'s SYNC, what came after the last tick's read: answers to earlier
+        SYNCs, never this tick's (:meth:`ControllerCore._age`). Across processes a tick's read ends
+        once the frames it waits for are in, and a node's slower frames come after it. Read without
+        waiting and at most ``_queued_max`` frames, so that a flood does not hold the SYNC back."""
         recv, receive = self.bus.recv, self.rx.receive
-        for _ in range(self.max_frames):
+        for _ in range(self._queued_max):
             msg = recv(timeout=0.0)
             if msg is None:
                 return
@@ -159,7 +160,8 @@ class LockstepLoop:
         self.tick = k
         self._idle_ns = 0
         cpu0 = self.clock.cpu_ns()
-        self._read_queued(k)
+        if self.pump is None:  # in process the last read ended on an empty queue, and only our sends fill it
+            self._read_queued(k)
         self._send("SYNC", (k,))
         t0 = self.clock.now_ns()
         if first_read_ns > t0:

@@ -228,9 +228,6 @@ def test_controller_walks_ten_gait_cycles_over_vcan0_with_the_nodes_as_a_second_
 # (3 in 50 ticks). A fall is never one (see the test). _stall_evidence says what counts; the four
 # boards are one process, so any board's late answer shows that process was not running.
 STALL_STOPS = ("NODE_LOST", "SENSOR_LOST", "OVERRUN")
-# The stops of the open real-time gait defect (see the test): the patient falls, or lets a stick go
-# in a swing (the protective stop of the stick rule), in double support after a swing.
-GAIT_DEFECT_STOPS = ("FALL", "STICK_UNLOADED")
 # Two attempts: each stalled one costs about 75 s of the suite's 20-minute budget (a fresh clone's
 # make test took 20.6 min on 2026-12-03 with three, all stalled).
 RT_ATTEMPTS = 2
@@ -269,16 +266,11 @@ def test_controller_walks_five_gait_cycles_in_real_time_as_two_processes(interfa
     any other stop fails. Walks all stopped by stalls skip, naming them: a real-time walk
     cannot be shown on a machine that does not give the CPU.
 
-    Over vcan0, a fall, a stick let go in a swing, or a walk that makes no progress, is the open
-    defect of docs/CONTROLLER.md ("The open real-time gait defect"): in this sandbox two-process
-    real-time walks fell in double support, lost a stick's load in a swing or stood in the weight
-    shift for minutes (never one of 11 in-process real-time walks on the host, nor one of the
-    two-process walks over UDP multicast on the host, nor a lock-step walk), so there it is
-    reported as an expected failure with its tick and cause, never retried and never taken for a
-    stall. On the host the same stop fails the test: the defect belongs to the sandbox, and this
-    variant shows it does not come from the two-process real-time pipeline itself."""
+    A fall, a stick let go in a swing or a walk that makes no progress fails, never retried and
+    never taken for a stall. Until 2026-12-03 they were the sandbox's expected failure (the
+    real-time gait defect of docs/CONTROLLER.md): the controller read three of the four nodes a
+    tick late, as if on time, for the whole walk, after their first answers came late."""
     channel = request.getfixturevalue("vcan0" if interface == "socketcan" else "udp_multicast")
-    in_sandbox = interface == "socketcan"
     stalled = []
     for attempt in range(1, RT_ATTEMPTS + 1):
         log = tmp_path / f"capture-{attempt}.log"
@@ -287,18 +279,15 @@ def test_controller_walks_five_gait_cycles_in_real_time_as_two_processes(interfa
         _check_capture(log, summary)  # whatever happened, what is on the bus is whole and in order
         stops = [t for t in _transitions(summary["events"]) if t[2] in ("FAULT", "HOLD")]
         if not stops:
-            if summary["steps_completed"] < 2 * RT_CYCLES and in_sandbox:
-                pytest.xfail(f"the open real-time gait defect (docs/CONTROLLER.md): attempt {attempt} made no progress, "
-                             f"{summary['steps_completed']} steps in {summary['ticks']} ticks, the patient {final['patient']}; "
-                             f"earlier attempts: {stalled}")
+            assert summary["steps_completed"] == 2 * RT_CYCLES, (
+                f"attempt {attempt} made no progress: {summary['steps_completed']} steps in {summary['ticks']} ticks, "
+                f"the patient {final['patient']}; earlier attempts: {stalled}")
             break
         tick, _, _, cause = stops[0]
-        if cause.startswith(GAIT_DEFECT_STOPS) and in_sandbox:
-            pytest.xfail(f"the open real-time gait defect (docs/CONTROLLER.md): attempt {attempt}, {cause} at tick {tick}, "
-                         f"after {summary['steps_completed']} steps; earlier attempts: {stalled}")
         evidence = _stall_evidence(summary, final, log, tick, cause)
         assert cause.startswith(STALL_STOPS) and evidence, (
-            f"stopped without a stall to explain it: {stops}; stalls {summary['stalls']} {final['stalls']}")
+            f"attempt {attempt} stopped without a stall to explain it: {stops} after {summary['steps_completed']} steps; "
+            f"stalls {summary['stalls']} {final['stalls']}; earlier attempts: {stalled}")
         stalled.append(f"attempt {attempt}: {cause} at tick {tick} ({'; '.join(evidence)})")
         print(f"real-time walk {stalled[-1]}")
     else:
