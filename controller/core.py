@@ -169,8 +169,9 @@ class ControllerCore:
         base = self._phase.get(frame_id)
         age = MAX_AGE + 1 if base is None else (lag - base) % 16
         if age > MAX_AGE or (queued and age == 0):
-            self._phase[frame_id] = (lag - queued) % 16
-            return int(queued)
+            least = 1 if queued else 0  # the least lateness it can have
+            self._phase[frame_id] = (lag - least) % 16
+            return least
         if age and not queued:
             self._late_now[frame_id] = age
         return age

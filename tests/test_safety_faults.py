@@ -261,10 +261,6 @@ def test_F4_frames_late_by_one_or_two_ticks_are_old_data_and_start_no_step(d):
 
 
 
-PER_SYNC = {n: frozenset(m.frame_id for m in CATALOG.sent_by(n) if m.is_cyclic and m.family != "HEARTBEAT")
-            for n in CATALOG.joint_nodes}
-
-
 def _fresh_ticks(rig: FaultRig, ticks: int) -> np.ndarray:
     """Per joint, in how many of ``ticks`` ticks the controller's measured position is nearer the
     nodes' state of that tick than that of the tick before (a swing moves every joint)."""
@@ -287,9 +283,9 @@ def test_F4_nodes_whose_first_answers_came_late_are_not_read_a_tick_old_ever_aft
     and no count (the vcan sandbox's real-time walks: at every stick placement the right stick's
     load came a tick after the left's). Frames already queued when a tick's SYNC goes out answer an
     earlier SYNC, and say so: the swing's measurements are each tick's own."""
-    ids = frozenset().union(*(PER_SYNC[n] for n in late))
-    with FaultRig(CFG, seed=3, bus_faults=[BusFault("delay", frame_ids=ids, start_tick=-1, end_tick=5)],
-                  answering=True) as rig:
+    with FaultRig(CFG, seed=3, answering=True) as rig:
+        ids = frozenset().union(*(rig.core.per_sync[n] for n in late))  # the frames the loop waits for
+        rig.inject_bus(BusFault("delay", frame_ids=ids, start_tick=-1, end_tick=5))
         rig.walk_to(GaitState.SWING_RIGHT)
         fresh = _fresh_ticks(rig, 20)
         assert rig.state == GaitState.SWING_RIGHT and rig.oracle.violations == []
