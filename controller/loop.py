@@ -21,6 +21,7 @@ from controller.core import ControllerCore, TickResult
 from controller.fsm import SWINGS
 from controller.telemetry import TelemetryLog
 from controller.timing import TickStats
+from protocol.bus import send_of
 from protocol.busload import wire_time_ns
 from protocol.catalog import TICK_MS
 from protocol.clock import MAX_STALLS, STALL_NS, Clock, MonotonicClock, TickTimer
@@ -52,6 +53,7 @@ class LockstepLoop:
         pump: Callable[[], object] | None = None, clock: Clock | None = None, telemetry: TelemetryLog | None = None,
     ) -> None:
         self.core, self.bus = core, bus
+        self._bus_send = send_of(bus)  # each message is made for one send
         self.codec = codec or Codec()
         self.rx = Receiver(self.codec, max_delta_counter=max_delta_counter)
         self.tx = Transmitter(self.codec)
@@ -78,7 +80,7 @@ class LockstepLoop:
         msg = self.tx.message(name, values)
         for _ in range(2):
             try:
-                self.bus.send(msg)
+                self._bus_send(msg)
                 self.report.frames_sent += 1
                 return
             except can.CanError:
@@ -98,22 +100,28 @@ class LockstepLoop:
         read = 0
         now_ns, recv, pump = self.clock.now_ns, self.bus.recv, self.pump  # looked up once: the loop runs per frame
         receive, core_receive, status_ids = self.rx.receive, self.core.receive, self._status_ids
-        begin = now_ns()
+        max_frames, begin = self.max_frames, now_ns()
         while True:
-            t0 = now_ns()
             # At most max_frames per tick's worth of waiting: a lock-step tick waits as long as its
             # peer takes (seconds when the nodes process stalls), and a flood of foreign frames on
             # vcan0 (no bitrate) outran a bound per tick while the nodes' answers were still to come.
-            if read >= self.max_frames * (1 + (t0 - begin) // self.tick_ns):
+            if read >= max_frames and read >= max_frames * (1 + (now_ns() - begin) // self.tick_ns):
                 break
-            remaining = (until_ns - t0) / 1e9
-            msg = recv(timeout=max(0.0, remaining) if pump is None else 0.0)
-            if msg is None and pump is not None:
-                pump()
+            if pump is None:  # across processes a read waits for the nodes: not the controller's work
+                t0 = now_ns()
+                remaining_ns = until_ns - t0
+                msg = recv(timeout=max(0.0, remaining_ns / 1e9))
+                self._idle_ns += now_ns() - t0
+            else:  # in process a read never waits; running the nodes (the pump) is their work
                 msg = recv(timeout=0.0)
-            self._idle_ns += now_ns() - t0  # waiting for (or running) the nodes is not the controller's work
+                if msg is None:
+                    t0 = now_ns()
+                    pump()
+                    self._idle_ns += now_ns() - t0
+                    remaining_ns = until_ns - t0
+                    msg = recv(timeout=0.0)
             if msg is None:
-                if expected <= got or remaining <= 0:
+                if expected <= got or remaining_ns <= 0:
                     break
                 continue
             read += 1

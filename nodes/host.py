@@ -39,6 +39,7 @@ from config import Config
 from config.loader import AiderError
 from nodes.faults import FaultInjector
 from nodes.firmware import ERR_CURRENT, ERR_GENERIC, DriveCommand, JointLimits, NodeFirmware
+from protocol.bus import send_of
 from protocol.catalog import TICK_MS, MessageSpec
 from protocol.clock import MAX_STALLS, STALL_NS, Clock, MonotonicClock
 from protocol.codec import Codec, Decoded
@@ -120,6 +121,7 @@ class NodesHost:
         if cfg.sim is None or cfg.nodes is None:
             raise NodesError("the configuration needs a sim and a nodes section to emulate the nodes")
         self.cfg, self.bus, self.lockstep = cfg, bus, lockstep
+        self._bus_send = send_of(bus)  # each frame is made for one send
         self.clock = clock or MonotonicClock()
         self.codec = codec or Codec()
         catalog = self.codec.catalog
@@ -413,7 +415,7 @@ class NodesHost:
 
     def _transmit(self, spec: MessageSpec, data: bytes) -> None:
         try:
-            self.bus.send(can.Message(arbitration_id=spec.frame_id, data=data, is_extended_id=False, check=False))
+            self._bus_send(can.Message(arbitration_id=spec.frame_id, data=data, is_extended_id=False, check=False))
             self.stats.frames_sent += 1
         except can.CanError:
             self.stats.send_failures += 1

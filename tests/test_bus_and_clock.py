@@ -8,7 +8,7 @@ import can
 import pytest
 
 from config import BusConfig
-from protocol.bus import InProcessBus, open_bus, socketcan_problem, virtual_bus
+from protocol.bus import InProcessBus, open_bus, send_of, socketcan_problem, virtual_bus
 from protocol.clock import ManualClock, TickTimer
 from protocol.errors import BusUnavailableError
 
@@ -43,6 +43,33 @@ def test_in_process_bus_delivers_as_python_cans_virtual_bus():
         assert a.recv(timeout=1).arbitration_id == 0x7 and plain.recv(timeout=1).arbitration_id == 0x7
         plain.send(can.Message(arbitration_id=0x8, data=b"\x09", is_extended_id=False))
         assert a.recv(timeout=1).arbitration_id == 0x8
+
+
+def test_in_process_send_owned_hands_the_message_to_one_receiver_and_copies_for_the_rest():
+    """A message made for one send is handed over, not copied, to one receiver, stamped as a copy
+    would be; every other receiver gets its own copy; with a bounded receiving queue (a put that
+    can fail) it is an ordinary send. ``send_of`` picks it for in-process buses only."""
+    with virtual_bus("t-owned") as a, virtual_bus("t-owned") as b:
+        assert send_of(a) == a.send_owned
+        sent = can.Message(arbitration_id=0x181, data=b"\x01\x02", is_extended_id=False)
+        a.send_owned(sent)
+        got = b.recv(timeout=1)
+        assert got is sent and got.channel == "t-owned" and got.is_rx and got.timestamp > 0
+        assert a.recv(timeout=0) is None
+        with virtual_bus("t-owned") as c:
+            a.send_owned(can.Message(arbitration_id=0x182, data=b"\x03", is_extended_id=False))
+            got_b, got_c = b.recv(timeout=1), c.recv(timeout=1)
+            assert (got_b.arbitration_id, bytes(got_b.data)) == (got_c.arbitration_id, bytes(got_c.data)) == (0x182, b"\x03")
+            assert got_b is not got_c and got_b.data is not got_c.data
+    with virtual_bus("t-owned-bounded") as a, virtual_bus("t-owned-bounded", rx_queue_size=4) as bounded:
+        sent = can.Message(arbitration_id=0x183, data=b"\x04", is_extended_id=False)
+        a.send_owned(sent)
+        got = bounded.recv(timeout=1)
+        assert got is not sent and bytes(got.data) == b"\x04"
+    with open_bus(BusConfig(interface="virtual", channel="t-owned-plain", bitrate_bit_s=500_000)) as a:
+        assert send_of(a) == a.send_owned
+    with can.Bus(interface="virtual", channel="t-owned-plain", ignore_config=True) as plain:  # python-can's own class
+        assert send_of(plain) == plain.send
 
 
 def _udp(channel: str, **kwargs) -> can.BusABC:
