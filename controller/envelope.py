@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from protocol.enums import JointMode
 
@@ -27,9 +28,9 @@ class JointBounds:
     upper_rad: float
 
 
-@dataclass(frozen=True)
-class JointCommand:
-    """What is sent to one node (the fields of JOINT_COMMAND)."""
+class JointCommand(NamedTuple):
+    """What is sent to one node (the fields of JOINT_COMMAND). Immutable records of every tick
+    are named tuples: half the cost of a frozen dataclass to make."""
 
     mode: JointMode
     position_rad: float = 0.0
@@ -38,8 +39,7 @@ class JointCommand:
     torque_limit_nm: float = 0.0
 
 
-@dataclass(frozen=True)
-class Checked:
+class Checked(NamedTuple):
     command: JointCommand  # safe to encode
     clamped: tuple[str, ...] = ()  # what was clamped, e.g. "position 2.10 -> 1.98"
     violation: str | None = None  # beyond the allowance: a fault

@@ -68,6 +68,7 @@ _DRIVE_OF_MODE = {
     JointMode.QUICK_STOP: DriveState.QUICK_STOP,
     JointMode.DISABLE: DriveState.DISABLED,
 }
+_MODE = {int(m): m for m in JointMode}  # JointMode(value) without the enum's call (the decoder checked the value)
 
 
 class NodeFirmware:
@@ -131,7 +132,7 @@ class NodeFirmware:
             return
         lim = self.limits
         clamped = DriveCommand(
-            JointMode(mode),
+            _MODE[mode],
             min(max(position, lim.lower_rad), lim.upper_rad),
             min(max(velocity, -lim.velocity_rad_s), lim.velocity_rad_s),
             min(max(torque, -lim.torque_nm), lim.torque_nm),
