@@ -102,8 +102,8 @@ class StateEstimator:
         b, legs = self.body, self.legs
         roll, pitch, yaw = m.trunk_rpy_rad.tolist()
         heel, toe, stick_force = m.heel_force_n.tolist(), m.toe_force_n.tolist(), m.stick_force_n.tolist()
-        feet_loaded = tuple(heel[i] + toe[i] > b.foot_loaded_n for i in range(2))
-        sticks_loaded = tuple(stick_force[i] > b.stick_loaded_n for i in range(2))
+        feet_loaded = (heel[0] + toe[0] > b.foot_loaded_n, heel[1] + toe[1] > b.foot_loaded_n)
+        sticks_loaded = (stick_force[0] > b.stick_loaded_n, stick_force[1] > b.stick_loaded_n)
         # in the trunk's frame: its CoM; per leg the hip, the thigh's and the shank's axes; per arm the shoulder
         sx, sy, sz = b.shoulder_xyz_m
         body_vectors = [[b.trunk_com_xz_m[0], 0.0, b.trunk_com_xz_m[1]]]
@@ -184,7 +184,8 @@ class StateEstimator:
                 roots.append(min(max(e, lo), hi))
         if not roots:
             return self._elbow[i], False
-        e = min(roots, key=lambda x: abs(x - self._elbow[i]))
+        last = self._elbow[i]
+        e = roots[0] if len(roots) == 1 or abs(roots[0] - last) <= abs(roots[1] - last) else roots[1]  # min() by nearness: the first on a tie
         self._elbow[i] = e
         return e, True
 
