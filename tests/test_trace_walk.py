@@ -55,6 +55,39 @@ def test_resim_reports_the_first_divergence_when_a_controller_parameter_changes(
     assert f"first divergence at tick {first['tick']}: {first['message']}.{first['signal']}: recorded" in text
 
 
+def test_resim_reads_a_node_frame_sent_after_the_controllers_frames_of_its_tick_as_late(walk):
+    """The loop sends its frames once its read has ended: a node's answer to SYNC(k) that comes
+    after them was not read in tick k, but before SYNC(k+1), as a late answer. Moving one such
+    answer there in the recorded walk makes tick k diverge (the joint's status is a tick old, so
+    the tick's data is not fresh), and the frame is still fed, once; left before the controller's
+    frames, the walk is reproduced."""
+    from config import default_config_path, load_config
+    from tools.trace.resim import resimulate, ticks_of
+
+    codec = Codec()
+    cfg = load_config(default_config_path())
+    frames = list(read_frames([walk], ReadReport()))
+    ticks = list(ticks_of(frames, codec))
+    assert all(t.late_frames == [] for t in ticks)  # lock-step: every answer before the controller's frames
+    k = ticks[TICKS // 2].number
+    status = codec.spec("JOINT_STATUS_LK").frame_id
+    sync_at = next(i for i, f in enumerate(frames) if f.arbitration_id == codec.spec("SYNC").frame_id
+                   and codec.decode(f.arbitration_id, f.data).values.tick == k)
+    moved = next(i for i in range(sync_at, len(frames)) if frames[i].arbitration_id == status)
+    first_command = next(i for i in range(sync_at, len(frames)) if codec.catalog.by_id(frames[i].arbitration_id).sender == "CONTROLLER"
+                         and frames[i].arbitration_id != frames[sync_at].arbitration_id)
+    late = frames[:moved] + frames[moved + 1:first_command] + [frames[first_command], frames[moved]] + frames[first_command + 1:]
+
+    def resim(trace):
+        return resimulate(trace, cfg.controller, codec=codec, max_delta_counter=cfg.protocol.max_delta_counter,
+                          request_walk_tick=0)
+
+    assert resim(frames).divergent_ticks == 0
+    r = resim(late)
+    assert r.first is not None and r.first.tick == k and r.node_frames_fed == resim(frames).node_frames_fed
+    assert [len(t.late_frames) for t in ticks_of(late, codec) if t.number == k] == [1]
+
+
 def test_resim_without_the_operators_start_diverges_when_the_recording_starts_walking(walk, capsys):
     r = _json(capsys, ["trace", "resim", str(walk), "--json", "--no-request-walk"], code=1)
     assert r["first_divergence"]["message"].startswith("JOINT_COMMAND_") and r["final_state"] == "STAND"

@@ -2,8 +2,14 @@
 tick, and the frames it would send compared with the ones the recorded controller sent.
 
 The trace is cut at its SYNC frames: the node frames after SYNC(k) (and, for the first tick, the
-boot-ups before it) are what :class:`controller.loop.LockstepLoop` read in tick ``k``. They go
-through a :class:`protocol.e2e.Receiver` with the configured ``max_delta_counter`` into
+boot-ups before it) up to the controller's first frame of the tick are what
+:class:`controller.loop.LockstepLoop` read in tick ``k``: the loop sends its frames once its read
+has ended, so a node frame after them came too late for the tick's read, and the loop read it
+before it sent SYNC(k+1), as a late answer (``queued``; :meth:`LockstepLoop._read_queued`), which
+is how they are fed here. (In a lock-step run every node frame of a SYNC comes before the
+controller's; a frame that comes after the read ended but before the controller sends, in a real-
+time run, is taken for the tick's: the wire does not show where a read ended.) They go through a
+:class:`protocol.e2e.Receiver` with the configured ``max_delta_counter`` into
 :meth:`ControllerCore.receive`, then :meth:`ControllerCore.tick` gives the tick's frames, plus
 the controller's heartbeat on the DBC's schedule, as the loop sends them. Both sides are compared
 on the wire's grid (the new values encoded and decoded with the DBC), message by message and
@@ -78,8 +84,9 @@ class ResimReport:
 @dataclass
 class Tick:
     number: int
-    node_frames: list[Frame]
+    node_frames: list[Frame]  # before the controller's first frame of the tick: read in the tick
     controller_frames: list[Frame]
+    late_frames: list[Frame] = field(default_factory=list)  # after it: read before the next SYNC
 
 
 def ticks_of(frames: Iterable[Frame], codec: Codec) -> Iterator[Tick]:
@@ -102,6 +109,8 @@ def ticks_of(frames: Iterable[Frame], codec: Codec) -> Iterator[Tick]:
             before.append(frame)
         elif spec is not None and spec.sender == controller:
             current.controller_frames.append(frame)
+        elif current.controller_frames:
+            current.late_frames.append(frame)
         else:
             current.node_frames.append(frame)
     if current is not None:
@@ -150,17 +159,25 @@ def resimulate(frames: Iterable[Frame], controller_cfg: Any, *, codec: Codec, ma
     rx = Receiver(codec, max_delta_counter=max_delta_counter)
     heartbeat = codec.spec("CONTROLLER_HEARTBEAT")
     report = ResimReport()
+
+    def feed(frames: list[Frame], k: int, queued: bool) -> None:
+        for frame in frames:
+            result = rx.receive(frame)
+            report.node_frames_fed += 1
+            if type(result) is not Decoded:
+                report.node_frames_rejected += 1
+            elif result.message.sender != controller:
+                core.receive(result, k, queued=queued)
+
+    controller = codec.spec("SYNC").sender
+    late: list[Frame] = []
     for tick in ticks_of(frames, codec):
         k = tick.number
         if request_walk_tick is not None and k == request_walk_tick:
             core.request_walk()
-        for frame in tick.node_frames:
-            result = rx.receive(frame)
-            report.node_frames_fed += 1
-            if type(result) is Decoded:
-                core.receive(result, k)
-            else:
-                report.node_frames_rejected += 1
+        feed(late, k, queued=True)
+        feed(tick.node_frames, k, queued=False)
+        late = tick.late_frames
         result = core.tick(k)
         sent = list(result.frames)
         if heartbeat.sent_in_tick(k):
