@@ -244,6 +244,15 @@ class ControllerCore:
             return sent == tick
         return True
 
+    def accept(self, result: Decoded | Rejection, tick: int, queued: bool = False) -> bool:
+        """One frame as the receiver judged it, read during ``tick``: a rejection is counted
+        (:meth:`rejected`), the controller's own frames (a bus that echoes them) are passed over,
+        a node's goes to :meth:`receive`. Returns True for a node's per-SYNC frame of this tick."""
+        if type(result) is not Decoded:
+            self.rejected(result, tick)
+            return False
+        return result.message.sender != "CONTROLLER" and self.receive(result, tick, queued)
+
     def rejected(self, rejection: Rejection, tick: int) -> None:
         """A frame the receiver rejected during ``tick`` (foreign frames only count as such)."""
         reason = rejection.reason

@@ -25,7 +25,7 @@ from protocol.bus import send_of
 from protocol.busload import wire_time_ns
 from protocol.catalog import TICK_MS
 from protocol.clock import MAX_STALLS, STALL_NS, Clock, MonotonicClock, TickTimer
-from protocol.codec import Codec, Decoded
+from protocol.codec import Codec
 from protocol.e2e import Receiver, Transmitter
 from protocol.enums import JointMode, NmtState
 
@@ -99,7 +99,7 @@ class LockstepLoop:
         pending = set().union(*(self.core.per_sync[n] for n in expected)) if self.pump is None else set()
         read = 0
         now_ns, recv, pump = self.clock.now_ns, self.bus.recv, self.pump  # looked up once: the loop runs per frame
-        receive, core_receive, status_ids = self.rx.receive, self.core.receive, self._status_ids
+        receive, accept, status_ids = self.rx.receive, self.core.accept, self._status_ids
         max_frames, begin = self.max_frames, now_ns()
         while True:
             # At most max_frames per tick's worth of waiting: a lock-step tick waits as long as its
@@ -126,10 +126,7 @@ class LockstepLoop:
                 continue
             read += 1
             result = receive(msg)
-            if type(result) is not Decoded:
-                self.core.rejected(result, tick)
-                continue
-            if result.message.sender != "CONTROLLER" and core_receive(result, tick):  # a late frame is not this tick's
+            if accept(result, tick):  # a late frame is not this tick's
                 frame_id = result.message.frame_id
                 node = status_ids.get(frame_id)
                 if node is not None:
@@ -147,16 +144,12 @@ class LockstepLoop:
         SYNCs, never this tick's (:meth:`ControllerCore._age`). Across processes a tick's read ends
         once the frames it waits for are in, and a node's slower frames come after it. Read without
         waiting and at most ``_queued_max`` frames, so that a flood does not hold the SYNC back."""
-        recv, receive = self.bus.recv, self.rx.receive
+        recv, receive, accept = self.bus.recv, self.rx.receive, self.core.accept
         for _ in range(self._queued_max):
             msg = recv(timeout=0.0)
             if msg is None:
                 return
-            result = receive(msg)
-            if type(result) is not Decoded:
-                self.core.rejected(result, tick)
-            elif result.message.sender != "CONTROLLER":
-                self.core.receive(result, tick, queued=True)
+            accept(receive(msg), tick, queued=True)
 
     def _expected(self) -> set[str]:
         return {n for n, s in self.core.nodes.items() if s.nmt == NmtState.OPERATIONAL}

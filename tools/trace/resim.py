@@ -164,12 +164,9 @@ def resimulate(frames: Iterable[Frame], controller_cfg: Any, *, codec: Codec, ma
         for frame in frames:
             result = rx.receive(frame)
             report.node_frames_fed += 1
-            if type(result) is not Decoded:
-                report.node_frames_rejected += 1
-            elif result.message.sender != controller:
-                core.receive(result, k, queued=queued)
+            report.node_frames_rejected += type(result) is not Decoded
+            core.accept(result, k, queued)  # as the loop: a rejection counted by the core too
 
-    controller = codec.spec("SYNC").sender
     late: list[Frame] = []
     for tick in ticks_of(frames, codec):
         k = tick.number
