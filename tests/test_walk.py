@@ -118,9 +118,10 @@ def test_a_walk_is_deterministic_for_its_seed(walked, one_cycle):
 
 
 def test_two_walks_with_one_seed_are_identical_and_another_seed_differs(one_cycle):
-    again = walk(BASE, cycles=1, seed=0, mode="sagittal")
-    assert as_records(again.steps) == as_records(one_cycle.steps)
-    assert again.ratio_errors == one_cycle.ratio_errors and again.ticks == one_cycle.ticks
+    # the second walk without the ground-truth comparison (as the experiment walks): the same walk
+    again = walk(BASE, cycles=1, seed=0, mode="sagittal", compare_ratio=False)
+    assert as_records(again.steps) == as_records(one_cycle.steps) and again.ticks == one_cycle.ticks
+    assert one_cycle.ratio_errors and not again.ratio_errors
     other = walk(BASE, cycles=1, seed=1, mode="sagittal")
     assert as_records(other.steps) != as_records(one_cycle.steps)
     assert other.ratio_errors != one_cycle.ratio_errors
