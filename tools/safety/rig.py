@@ -58,6 +58,20 @@ def _weak_pump(rig: FaultRig) -> Callable[[], None]:
     return pump
 
 
+class _AnsweredBus(FaultBus):
+    """A :class:`FaultBus` whose every sent frame the node boards answer at once (``answer``, the
+    rig's pump): as across processes, where the boards run while the controller sends."""
+
+    def __init__(self, inner: can.BusABC, faults: Iterable[BusFault], *, rng: np.random.Generator,
+                 answer: Callable[[], None]) -> None:
+        super().__init__(inner, faults, rng=rng)
+        self._answer = answer
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        super().send(msg, timeout)
+        self._answer()
+
+
 class FaultRig:
     def __init__(
         self, cfg: Config, *, seed: int = 0, bus_faults: Iterable[BusFault] = (), tick_timeout_s: float = 0.05,
@@ -71,7 +85,10 @@ class FaultRig:
         self.cfg = cfg = with_overrides(cfg, {"bus.channel": channel, "sim.mode": mode})
         self.listener = virtual_bus(channel)
         self.node_bus = virtual_bus(channel)
-        self.bus = FaultBus(virtual_bus(channel), bus_faults, rng=np.random.default_rng(seed))
+        pump = _weak_pump(self)
+        rng = np.random.default_rng(seed)
+        self.bus = (_AnsweredBus(virtual_bus(channel), bus_faults, rng=rng, answer=pump) if answering
+                    else FaultBus(virtual_bus(channel), bus_faults, rng=rng))
         try:
             self.host = NodesHost(cfg, self.node_bus, lockstep=True, seed=seed, codec=shared_codec())
         except Exception:
@@ -79,15 +96,6 @@ class FaultRig:
             raise
         self.host.boot()
         self.core = ControllerCore(cfg.controller)
-        pump = _weak_pump(self)
-        if answering:
-            send = self.bus.send
-
-            def send_and_answer(msg: can.Message, timeout: float | None = None) -> None:
-                send(msg, timeout)
-                pump()
-
-            self.bus.send = send_and_answer  # type: ignore[method-assign]
         self.loop = LockstepLoop(
             self.core, self.bus, codec=shared_codec(), pump=None if answering else pump, tick_timeout_s=tick_timeout_s,
             max_delta_counter=cfg.protocol.max_delta_counter,
