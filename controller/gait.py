@@ -20,7 +20,9 @@ sticks hold it. One gait cycle, per leg (docs/CONTROLLER.md):
    goal, ``lean_behind_tips`` behind the mean stick tip (where it placed the sticks is its
    intention). The step is ready when both sticks carry ``swing_stick_n``, stand ``tips_ahead``
    ahead of the front ankle, and the lean is over: the swing foot free, the CoM at the patient's
-   limit, or no farther forward by ``lean_stall_m`` for ``lean_stall_s``. No check of where the CoM
+   limit, or no farther forward by ``lean_stall_m`` for ``lean_stall_s`` (``lean_start_s`` until the
+   lean has first moved that far: the body, still coming back from the stick moves, takes up to
+   half a second to follow). No check of where the CoM
    is against the stance foot: that is the step length's job (the CoM compensation of the paper's
    equation (8)); a step too long for the patient's lean falls.
 3. **Swing.** The swing ankle follows the DMP in the stance foot's frame, from where it is to
@@ -153,6 +155,7 @@ class GaitPlanner:
         self.aim_offset_m = 0.0  # how far beyond the commanded length the swings aim (foot placement)
         self._lean_best_x = -math.inf  # the farthest the CoM got in this lean, and how long since
         self._lean_still_s = 0.0
+        self._lean_moved = False  # the CoM got lean_stall_m beyond where this lean started
         self._foot_free_s = 0.0  # how long the next swing's foot has been unloaded
 
     # -- set-up ----------------------------------------------------------------------------------
@@ -171,7 +174,7 @@ class GaitPlanner:
     def _new_cycle(self, est: Estimate, ref_leg: int) -> None:
         self.sticks.reset(est, ref_leg)
         self.feet_spacing_m = float(est.ankles[RIGHT][0] - est.ankles[LEFT][0])
-        self._lean_best_x, self._lean_still_s = -math.inf, 0.0
+        self._lean_best_x, self._lean_still_s, self._lean_moved = -math.inf, 0.0, False
         self._foot_free_s = 0.0
 
     def track_sticks(self, est: Estimate, m: Measurements) -> None:
@@ -265,10 +268,13 @@ class GaitPlanner:
         self._solve(m)
         progress = com_x - float(est.ankles[self.sticks.ref_leg][0])  # over a planted foot: the estimate's frame moves with the hips
         if progress > self._lean_best_x + p.lean_stall_m:
+            # the lean's first tick sets where it starts; a new best after that: it has moved
+            self._lean_moved = math.isfinite(self._lean_best_x)
             self._lean_best_x, self._lean_still_s = progress, 0.0
         else:
             self._lean_still_s += self.dt_s
-        over = free or com_x >= goal + p.lean_past_goal_m - p.lean_stall_m or self._lean_still_s >= p.lean_stall_s
+        stalled = self._lean_still_s >= (p.lean_stall_s if self._lean_moved else p.lean_start_s)
+        over = free or com_x >= goal + p.lean_past_goal_m - p.lean_stall_m or stalled
         ahead = tip_l > front + p.tips_ahead_m and tip_r > front + p.tips_ahead_m
         return DoubleSupport(over and ahead and self.sticks.loaded, "lean", goal, self.sticks.loaded)
 

@@ -255,18 +255,68 @@ def test_the_stance_hips_targets_add_the_trunks_pitch_goal():
         assert g.targets[2 * i] == pytest.approx(hip + pitch) and g.targets[2 * i + 1] == pytest.approx(knee)
 
 
-def test_with_both_sticks_moved_double_support_leans_toward_the_patients_goal():
-    est = estimate(ankles_x=(-0.06, 0.06), com_x=0.0, tips_x=(0.35, 0.35))
-    g = planner(est, measurements(est))
+def sticks_moved(g: GaitPlanner, com_x: float = 0.0) -> Estimate:
+    """Lift both sticks and plant them farther forward (tips at 0.42 and 0.46 m); returns that
+    estimate."""
+    est = estimate(ankles_x=(-0.06, 0.06), com_x=com_x, tips_x=(0.35, 0.35))
     for _ in range(LIFT):
         g.track_sticks(est, measurements(est, sticks=(0.0, 0.0)))
-    ahead = estimate(ankles_x=(-0.06, 0.06), com_x=0.0, tips_x=(0.42, 0.46))
+    ahead = estimate(ankles_x=(-0.06, 0.06), com_x=com_x, tips_x=(0.42, 0.46))
     for _ in range(SETTLE):
         g.track_sticks(ahead, measurements(ahead))
     assert g.sticks.moved == [True, True]
+    return ahead
+
+
+def test_with_both_sticks_moved_double_support_leans_toward_the_patients_goal():
+    est = estimate(ankles_x=(-0.06, 0.06), com_x=0.0, tips_x=(0.35, 0.35))
+    g = planner(est, measurements(est))
+    ahead = sticks_moved(g)
     ds = g.double_support(ahead, measurements(ahead), RIGHT)
     assert ds.part == "lean" and ds.lean_goal_x == pytest.approx(0.44 - P.lean_behind_tips_m)
     assert mid_lead(g, ahead) > 0.0  # the CoM behind the goal: the hips go forward
+
+
+def ticks_to_ready(g: GaitPlanner, est: Estimate, limit: int = 500) -> int:
+    """Lean ticks with the CoM held at ``est`` until the step is ready."""
+    for n in range(1, limit + 1):
+        if g.double_support(est, measurements(est), RIGHT).ready:
+            return n
+    raise AssertionError(f"the step was not ready after {limit} ticks")
+
+
+STALL = replace(P, lean_stall_s=0.3, lean_start_s=1.0)  # the rule, whatever the configured times
+
+
+def stalling_planner() -> tuple[GaitPlanner, Estimate]:
+    est = estimate()
+    g = GaitPlanner(LEG, Dmp(load_swing(CFG)), STALL, dt_s=DT, substeps=CFG.swing.substeps)
+    g.stand_here(est, measurements(est))
+    return g, sticks_moved(g)
+
+
+def test_a_lean_the_body_does_not_follow_at_all_is_over_after_lean_start_s():
+    # the swing foot loaded, the CoM far from the patient's limit: only the stall can end the lean
+    g, ahead = stalling_planner()
+    n = ticks_to_ready(g, ahead)
+    assert ticks_for(STALL.lean_start_s) <= n <= ticks_for(STALL.lean_start_s) + 1
+
+
+def test_a_lean_that_moved_and_stopped_is_over_after_lean_stall_s():
+    g, ahead = stalling_planner()
+    assert not g.double_support(ahead, measurements(ahead), RIGHT).ready  # where the lean starts
+    moved = estimate(ankles_x=(-0.06, 0.06), com_x=2 * STALL.lean_stall_m, tips_x=(0.42, 0.46))
+    n = ticks_to_ready(g, moved)
+    assert ticks_for(STALL.lean_stall_s) <= n <= ticks_for(STALL.lean_stall_s) + 1
+
+
+def test_a_lean_that_creeps_forward_is_not_over():
+    g, ahead = stalling_planner()
+    for k in range(ticks_for(3 * STALL.lean_start_s)):
+        # lean_stall_m farther forward every lean_stall_s, less a tick
+        creep = estimate(ankles_x=(-0.06, 0.06), com_x=1.01 * STALL.lean_stall_m * (k // (ticks_for(STALL.lean_stall_s) - 1)),
+                         tips_x=(0.42, 0.46))
+        assert not g.double_support(creep, measurements(creep), RIGHT).ready
 
 
 # -- GaitPlanner: foot placement -------------------------------------------------------------------

@@ -88,17 +88,20 @@ def test_two_gait_cycles_walk_without_a_fall_and_estimate_the_com_ratio_within_t
 
 
 def test_a_lean_at_rest_with_the_sticks_light_presses_on_them_and_the_step_starts():
-    """Seed 0's fifth step: the lean comes to rest on the feet (the CoM over the soles, the
-    trailing leg straight) with the sticks carrying 5-10 N, below what the controller needs to
-    swing. The patient presses on the sticks (docs/SIM.md item 23) and the swing starts; before,
-    it started 17.8 s later when sensor noise lifted both sticks past the threshold."""
+    """Seed 0's fifth step, the controller's lean ending after 1 s without progress (its stall
+    time until 2026-12-03; with 0.5 s no lean of seeds 0-5 rests that long, 10 cycles each): the
+    lean comes to rest on the feet (the CoM over the soles, the trailing leg straight) with the
+    sticks carrying 5-10 N, below what the controller needs to swing. The patient presses on the
+    sticks (docs/SIM.md item 23) and the swing starts; before, it started 17.8 s later when sensor
+    noise lifted both sticks past the threshold."""
     pressed = []
 
     def on_tick(result, core, host):
         if host.patient.lean_rest_s >= host.patient.s.stalled_lean_s:
             pressed.append(result.tick)
 
-    outcome = walk(BASE, cycles=3, seed=0, mode="sagittal", on_tick=on_tick)
+    waiting = with_overrides(BASE, {"controller.gait.lean_stall_s": 1.0, "controller.gait.lean_start_s": 1.0})
+    outcome = walk(waiting, cycles=3, seed=0, mode="sagittal", on_tick=on_tick)
     assert_walked(outcome, 3)
     assert pressed, "no lean came to rest: the case this test is about did not happen"
     press_step = next(s for s in outcome.steps if s.start_tick <= pressed[0] < s.swing_tick)
