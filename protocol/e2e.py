@@ -27,6 +27,7 @@ import can
 
 from protocol.catalog import COUNTER_MODULO, MessageSpec
 from protocol.codec import Codec, Decoded, RejectReason, Rejection, _new
+from protocol.enums import NmtState
 
 
 @dataclass
@@ -103,7 +104,7 @@ class Receiver:
             last = self._last.get(frame_id)
             if last is not None:
                 delta = (counter - last) % COUNTER_MODULO
-                if delta == 0 or delta > self.max_delta_counter:
+                if (delta == 0 or delta > self.max_delta_counter) and not _boot_up(compiled.spec, result, counter):
                     spec = compiled.spec
                     if delta == 0:
                         reason, detail = RejectReason.REPEATED, f"{spec.name}: counter {counter} repeated"
@@ -122,6 +123,13 @@ class Receiver:
         except Exception as exc:  # a receive path never raises; a fault here is counted and visible
             fid = frame_id if isinstance(frame_id, int) else -1
             return self._reject(Rejection(RejectReason.DECODER_FAULT, fid, repr(exc), timestamp=timestamp))
+
+
+def _boot_up(spec: MessageSpec, values: Any, counter: int) -> bool:
+    """A node's boot-up heartbeat (NMT state BOOT_UP, its counter restarted at 0): a new start of
+    its sender's sequence, accepted whatever counter came before (a rejected boot-up would leave
+    the reboot to be found only as a lost node, ticks later; FAULTS.md F23)."""
+    return counter == 0 and spec.family == "HEARTBEAT" and type(values) is not int and values.nmt_state == NmtState.BOOT_UP
 
 
 class Transmitter:

@@ -67,6 +67,25 @@ def test_counters_are_per_message_and_reset_forgets_them():
     assert isinstance(rx.receive_data(SPEC.frame_id, frame(7)), Decoded)  # a rebooted sender starts afresh
 
 
+def test_a_boot_up_heartbeat_restarts_its_senders_sequence_and_nothing_else_does():
+    # F23: a rebooted node's counters start again at 0; its boot-up must be seen at once, whatever
+    # counter its last heartbeat had (rejected, the reboot showed only as a lost node, ticks later)
+    from protocol.enums import NmtState
+
+    hb = CODEC.spec("HEARTBEAT_LK")
+    rx = Receiver(CODEC, max_delta_counter=3)
+    assert isinstance(rx.receive_data(hb.frame_id, CODEC.encode(hb, (NmtState.OPERATIONAL, 24.0), 7)), Decoded)
+    pre = rx.receive_data(hb.frame_id, CODEC.encode(hb, (NmtState.PRE_OPERATIONAL, 24.0), 0))
+    assert pre.reason is RejectReason.WRONG_SEQUENCE  # counter 0 alone is no restart
+    rx.reset(hb.frame_id)
+    rx.receive_data(hb.frame_id, CODEC.encode(hb, (NmtState.OPERATIONAL, 24.0), 7))
+    boot = rx.receive_data(hb.frame_id, CODEC.encode(hb, (NmtState.BOOT_UP, 24.0), 0))
+    assert isinstance(boot, Decoded) and boot.values.nmt_state == NmtState.BOOT_UP
+    assert isinstance(rx.receive_data(hb.frame_id, CODEC.encode(hb, (NmtState.PRE_OPERATIONAL, 24.0), 1)), Decoded)
+    # a boot-up whose counter is not 0 is not a restart
+    assert rx.receive_data(hb.frame_id, CODEC.encode(hb, (NmtState.BOOT_UP, 24.0), 9)).reason is RejectReason.WRONG_SEQUENCE
+
+
 @pytest.mark.parametrize(
     "msg, reason",
     [

@@ -197,7 +197,7 @@ CASES = [
     # (A rebooted node's boot-up frame restarts its counter: the receiver accepts it or, when the
     # jump is beyond max_delta_counter, rejects it and re-synchronises, and the pre-operational
     # heartbeat right after it is the detection.)
-    Case("F23", "swing", node_fault("reboot", "LEFT_KNEE"), FAULT, r"NODE_(REBOOTED|NOT_OPERATIONAL)\(LEFT_KNEE\)", detect=1),
+    Case("F23", "swing", node_fault("reboot", "LEFT_KNEE"), FAULT, r"NODE_REBOOTED\(LEFT_KNEE\)", detect=1),
     Case("F24", "stance", node_fault("drive_fault", "RIGHT_KNEE"), FAULT, "EMCY 0x2310 from RIGHT_KNEE", detect=0),
     # F25: overruns reported by the real-time loop: 3 within the window, or one beyond overrun_max_ticks: HOLD.
     Case("F25", "stance", overruns([1, 0, 1, 0, 1]), HOLD, "OVERRUN", detect=4, react=0),
