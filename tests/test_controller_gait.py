@@ -148,8 +148,9 @@ def test_reset_starts_a_new_cycle():
 # -- GaitPlanner: the stance legs in double support ----------------------------------------------
 
 
-def planner(est: Estimate, m: Measurements) -> GaitPlanner:
-    g = GaitPlanner(LEG, Dmp(load_swing(CFG)), P, dt_s=DT, substeps=CFG.swing.substeps)
+def planner(est: Estimate, m: Measurements, params=P) -> GaitPlanner:
+    """A planner standing at ``est``, with the configured gait or ``params``."""
+    g = GaitPlanner(LEG, Dmp(load_swing(CFG)), params, dt_s=DT, substeps=CFG.swing.substeps)
     g.stand_here(est, m)
     return g
 
@@ -290,8 +291,7 @@ STALL = replace(P, lean_stall_s=0.3, lean_start_s=1.0)  # the rule, whatever the
 
 def stalling_planner() -> tuple[GaitPlanner, Estimate]:
     est = estimate()
-    g = GaitPlanner(LEG, Dmp(load_swing(CFG)), STALL, dt_s=DT, substeps=CFG.swing.substeps)
-    g.stand_here(est, measurements(est))
+    g = planner(est, measurements(est), STALL)
     return g, sticks_moved(g)
 
 
@@ -324,10 +324,7 @@ def test_a_lean_that_creeps_forward_is_not_over():
 
 def placing(est: Estimate, gain: float = 0.5, max_offset_m: float = 0.05) -> GaitPlanner:
     """A planner with the foot placement loop on (whatever the configuration's default)."""
-    g = GaitPlanner(LEG, Dmp(load_swing(CFG)), replace(P, placement_gain=gain, max_aim_offset_m=max_offset_m),
-                    dt_s=DT, substeps=CFG.swing.substeps)
-    g.stand_here(est, measurements(est))
-    return g
+    return planner(est, measurements(est), replace(P, placement_gain=gain, max_aim_offset_m=max_offset_m))
 
 
 def test_a_swing_aims_beyond_the_commanded_length_by_the_integrated_shortfall():
