@@ -74,6 +74,11 @@ class Receiver:
         else:
             self._last.pop(frame_id, None)
 
+    def _restart(self, sender: str) -> None:
+        """``sender`` booted: every counter of its messages starts again, each next frame is first."""
+        for spec in self.codec.catalog.sent_by(sender):
+            self._last.pop(spec.frame_id, None)
+
     def _reject(self, rejection: Rejection) -> Rejection:
         self.stats.rejected[rejection.reason] += 1
         self.stats.rejected_by_id[rejection.frame_id] += 1
@@ -101,10 +106,12 @@ class Receiver:
             if result == -1:
                 return self._reject(self.codec.rejection(compiled, -1, frame_id)._replace(timestamp=timestamp))
             counter = data[1] & 0xF
+            if counter == 0 and _boot_up(compiled.spec, result):
+                self._restart(compiled.spec.sender)
             last = self._last.get(frame_id)
             if last is not None:
                 delta = (counter - last) % COUNTER_MODULO
-                if (delta == 0 or delta > self.max_delta_counter) and not _boot_up(compiled.spec, result, counter):
+                if delta == 0 or delta > self.max_delta_counter:
                     spec = compiled.spec
                     if delta == 0:
                         reason, detail = RejectReason.REPEATED, f"{spec.name}: counter {counter} repeated"
@@ -125,11 +132,12 @@ class Receiver:
             return self._reject(Rejection(RejectReason.DECODER_FAULT, fid, repr(exc), timestamp=timestamp))
 
 
-def _boot_up(spec: MessageSpec, values: Any, counter: int) -> bool:
-    """A node's boot-up heartbeat (NMT state BOOT_UP, its counter restarted at 0): a new start of
-    its sender's sequence, accepted whatever counter came before (a rejected boot-up would leave
-    the reboot to be found only as a lost node, ticks later; FAULTS.md F23)."""
-    return counter == 0 and spec.family == "HEARTBEAT" and type(values) is not int and values.nmt_state == NmtState.BOOT_UP
+def _boot_up(spec: MessageSpec, values: Any) -> bool:
+    """Whether a frame (with counter 0) is a node's boot-up heartbeat (NMT state BOOT_UP): its
+    sender restarted, and every counter of its messages with it. Judged by the old counters, the
+    boot-up was rejected whenever its jump passed ``max_delta_counter``, and the reboot was found
+    only as a lost node, ticks later (FAULTS.md F23)."""
+    return spec.family == "HEARTBEAT" and type(values) is not int and values.nmt_state == NmtState.BOOT_UP
 
 
 class Transmitter:

@@ -82,6 +82,13 @@ def test_a_boot_up_heartbeat_restarts_its_senders_sequence_and_nothing_else_does
     boot = rx.receive_data(hb.frame_id, CODEC.encode(hb, (NmtState.BOOT_UP, 24.0), 0))
     assert isinstance(boot, Decoded) and boot.values.nmt_state == NmtState.BOOT_UP
     assert isinstance(rx.receive_data(hb.frame_id, CODEC.encode(hb, (NmtState.PRE_OPERATIONAL, 24.0), 1)), Decoded)
+    # the boot-up restarts every counter of its sender (PLANTAR_LEFT is the left knee's), no other's
+    rx.receive_data(SPEC.frame_id, frame(7))
+    other = CODEC.spec("PLANTAR_RIGHT")
+    rx.receive_data(other.frame_id, CODEC.encode(other, (1.0, 2.0), 7))
+    rx.receive_data(hb.frame_id, CODEC.encode(hb, (NmtState.BOOT_UP, 24.0), 0))
+    assert isinstance(rx.receive_data(SPEC.frame_id, frame(0)), Decoded)
+    assert rx.receive_data(other.frame_id, CODEC.encode(other, (1.0, 2.0), 0)).reason is RejectReason.WRONG_SEQUENCE
     # a boot-up whose counter is not 0 is not a restart
     assert rx.receive_data(hb.frame_id, CODEC.encode(hb, (NmtState.BOOT_UP, 24.0), 9)).reason is RejectReason.WRONG_SEQUENCE
 
