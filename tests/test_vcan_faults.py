@@ -351,7 +351,8 @@ def crash():
     """The F20/F22 scenario, run once by the first test that asks (with the vcan0 fixture's gate):
     nodes and controller walking in real time, the controller SIGKILLed mid-swing, the nodes
     left alone for 2.5 s, a controller started again against them for 150 ticks without and then
-    with ``--reset``, the nodes stopped; candump records each phase."""
+    with ``--reset`` (that phase run again when a stall disrupted it: _reset_disrupted), the nodes
+    stopped; candump records each phase."""
     cache: dict = {}
 
     def run(vcan0: str, tmp: Path) -> dict:
@@ -385,10 +386,20 @@ def crash():
                 _wait(tail, _Count(set(EMCY_IDS), 4), "the nodes' EMCYs", (nodes,), timeout_s=60)
                 # 2.5 s of the nodes alone, counted in their own ticks (4 heartbeats per 5 ticks)
                 _wait(tail, _Count(set(HEARTBEAT_PHASE), 100), "2.5 s of quick stop", (nodes,), timeout_s=120)
-            for phase, extra in (("restart", ()), ("reset", ("--reset",))):
-                with candump(vcan0, logs[phase]):
-                    ctl = _controller(vcan0, "--ticks", "150", *extra)
-                    cache[phase] = _summary(ctl)
+            with candump(vcan0, logs["restart"]):
+                ctl = _controller(vcan0, "--ticks", "150")
+                cache["restart"] = _summary(ctl)
+            cache["reset_retried"] = []
+            for attempt in range(ATTEMPTS):
+                logs["reset"] = tmp / f"reset-{attempt}.log"
+                with candump(vcan0, logs["reset"]):
+                    ctl = _controller(vcan0, "--ticks", "150", "--reset")
+                    cache["reset"] = _summary(ctl)
+                why = _reset_disrupted(cache["reset"], logs["reset"])
+                if not why:
+                    break
+                cache["reset_retried"].append(f"attempt {attempt + 1}: {why}")
+                print(f"\n(F22 reset phase disrupted by a stall, run again: {why})")
             cache["nodes"] = _stop(nodes)
         finally:
             _reap(nodes, ctl)
@@ -396,6 +407,30 @@ def crash():
         cache["truth"] = [json.loads(line) for line in truth.read_text().splitlines()]
 
     return run
+
+
+def _reset_disrupted(summary: dict, log: Path) -> str | None:
+    """Why a reset phase that never stood is explained by a stall of the machine, or None.
+
+    Between the nodes' FAULT_RESET and the FSM's reset (25 healthy ticks later) a stall of the
+    guest that kept the controller off the CPU for 3 of the nodes' ticks makes them quick-stop
+    again (their command watchdog, as designed: F20); the one reset of ``--reset`` is spent and
+    the FSM rightly stays in FAULT. Seen once in CI (2026-12-04), not reproduced in 5 runs. Only
+    that, with the stall measured or a node's new watchdog EMCY after its clear, counts here."""
+    if any(e.endswith("-> STAND: operator reset") for e in summary["events"]):
+        return None
+    decoded, _ = _decode_capture(log)
+    cleared, relatched = set(), []
+    for t, d in zip(_sync_ticks(decoded), decoded):
+        if d.message.family != "EMCY":
+            continue
+        if d.values.emcy_code == EmcyCode.NO_ERROR:
+            cleared.add(d.message.sender)
+        elif d.message.sender in cleared and d.values.emcy_code in (EmcyCode.COMMAND_TIMEOUT, EmcyCode.HEARTBEAT_LOST):
+            relatched.append(f"{d.message.sender} {EmcyCode(d.values.emcy_code).name} after SYNC {t}")
+    if not (relatched or summary["stalls"]):
+        return None
+    return f"no operator reset to STAND; nodes quick-stopped again: {relatched}; stalls (tick, ms) {summary['stalls']}"
 
 
 def test_killed_controller_nodes_quick_stop_and_hold(vcan0, tmp_path_factory, crash):
@@ -499,14 +534,20 @@ def test_restarted_controller_leaves_fault_only_on_the_operators_reset_and_does_
     """F22/I4 with ``--reset``: FAULT_RESET clears the nodes, the FSM stands after 25 healthy ticks
     on a second reset request, and without --walk it stands to the end."""
     r = crash(vcan0, tmp_path_factory.mktemp("crash"))
+    if len(r["reset_retried"]) == ATTEMPTS:
+        pytest.skip(f"every reset phase was disrupted by a stall of the machine: {r['reset_retried']}")
     s = r["reset"]
     transitions = _transitions(s["events"])
     decoded, _ = _decode_capture(r["logs"]["reset"])
-    print(f"\nF22 with --reset: resets at ticks {s['resets']}, {transitions}, commands {dict(_commands(decoded))}")
+    print(f"\nF22 with --reset: resets at ticks {s['resets']}, {transitions}, commands {dict(_commands(decoded))}"
+          f"{', after ' + '; '.join(r['reset_retried']) if r['reset_retried'] else ''}")
     assert s["ticks"] == 150
     sticks = [(d.name, round(d.values[0])) for d in decoded if d.message.family == "STICK"][-4:]  # force first
+    ticks = _sync_ticks(decoded)
+    emcys = [(t, d.message.sender, EmcyCode(d.values.emcy_code).name) for t, d in zip(ticks, decoded) if d.message.family == "EMCY"]
     assert [(a, b) for _, a, b, _ in transitions[:2]] == [("INIT", "FAULT"), ("FAULT", "STAND")], (
-        transitions, s["resets"], f"last stick forces {sticks} (I4 resets only with both sticks loaded)")
+        transitions, s["resets"], f"last stick forces {sticks} (I4 resets only with both sticks loaded)",
+        f"EMCYs (SYNC tick, node, code) {emcys}", f"stalls (tick, ms) {s['stalls']}", r["reset_retried"])
     assert transitions[0][3].startswith("DRIVE_FAULT(") and transitions[1][3] == "operator reset"
     assert len(s["resets"]) == 2, s["resets"]  # the nodes' FAULT_RESET, then the FSM's reset once they were healthy
     first_reset, fsm_reset = s["resets"]
@@ -523,7 +564,6 @@ def test_restarted_controller_leaves_fault_only_on_the_operators_reset_and_does_
     assert end - fsm_reset >= 20, later
     assert s["final_state"] == (later[-1][2] if later else "STAND")
 
-    ticks = _sync_ticks(decoded)
     resets = [t for t, d in zip(ticks, decoded) if d.name == "NMT_COMMAND" and d.values.command == NmtCommand.FAULT_RESET]
     assert resets == s["resets"]
     # Each node answers the first FAULT_RESET with EMCY NO_ERROR and reports its drive out of FAULT,
