@@ -6,6 +6,7 @@ import argparse
 import sys
 from typing import Any
 
+from protocol.enums import DriveState
 from tools.cli.common import StopSignals, add_config_options, load_cli_config, positive_float, positive_int, print_json
 
 
@@ -52,6 +53,10 @@ def _status_line(loop: Any, result: Any) -> str:
     extra = ""
     if est is not None:
         extra = f" | X_CoM/X_SP {est.x_ratio:.2f} | sticks loaded {sum(est.sticks_loaded)} feet {sum(est.feet_loaded)}"
+    if result.state.name in ("FAULT", "HOLD"):  # what a reset waits for (I4): the operator sees why nothing happens
+        fsm = loop.core.fsm
+        faulted = [n for n, s in loop.core.nodes.items() if s.status is not None and s.status.drive_state == DriveState.FAULT]
+        extra += f" | healthy {fsm.healthy_ticks}/{fsm.reset_healthy_ticks} ticks" + (f", drive FAULT: {' '.join(faulted)}" if faulted else "")
     return f"controller tick {result.tick} {result.state.name} | {nodes}{extra} | timeouts {loop.report.timeouts}"
 
 
