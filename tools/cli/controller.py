@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-from protocol.enums import DriveState
+from protocol.enums import DriveState, GaitState
 from tools.cli.common import StopSignals, add_config_options, load_cli_config, positive_float, positive_int, print_json
 
 
@@ -53,7 +53,7 @@ def _status_line(loop: Any, result: Any) -> str:
     extra = ""
     if est is not None:
         extra = f" | X_CoM/X_SP {est.x_ratio:.2f} | sticks loaded {sum(est.sticks_loaded)} feet {sum(est.feet_loaded)}"
-    if result.state.name in ("FAULT", "HOLD"):  # what a reset waits for (I4): the operator sees why nothing happens
+    if result.state in (GaitState.FAULT, GaitState.HOLD):  # what a reset waits for (I4): the operator sees why nothing happens
         fsm = loop.core.fsm
         faulted = [n for n, s in loop.core.nodes.items() if s.status is not None and s.status.drive_state == DriveState.FAULT]
         extra += f" | healthy {fsm.healthy_ticks}/{fsm.reset_healthy_ticks} ticks" + (f", drive FAULT: {' '.join(faulted)}" if faulted else "")
@@ -71,7 +71,6 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = load_cli_config(args, needs=("controller",))
     from controller.factory import step_policy
-    from protocol.enums import GaitState
 
     # Everything that can be wrong with the configuration or a patient file fails here, before the bus opens.
     policy, saver = step_policy(cfg.controller, fixed_m=args.fixed_step, learn=args.learn, patient=args.patient,
