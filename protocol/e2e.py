@@ -134,9 +134,8 @@ class Receiver:
 
 def _boot_up(spec: MessageSpec, values: Any) -> bool:
     """Whether a frame (with counter 0) is a node's boot-up heartbeat (NMT state BOOT_UP): its
-    sender restarted, and every counter of its messages with it. Judged by the old counters, the
-    boot-up was rejected whenever its jump passed ``max_delta_counter``, and the reboot was found
-    only as a lost node, ticks later (FAULTS.md F23)."""
+    sender restarted, and every counter of its messages with it (FAULTS.md F23). ``values`` is an
+    int when a signal is out of range (rejected after the counter check): no boot-up then."""
     return spec.family == "HEARTBEAT" and type(values) is not int and values.nmt_state == NmtState.BOOT_UP
 
 

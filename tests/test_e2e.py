@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 
 from protocol.codec import Codec, Decoded, RejectReason, Rejection
 from protocol.e2e import Receiver, Transmitter
+from protocol.enums import NmtState
 
 CODEC = Codec()
 SPEC = CODEC.spec("PLANTAR_LEFT")
@@ -70,8 +71,6 @@ def test_counters_are_per_message_and_reset_forgets_them():
 def test_a_boot_up_heartbeat_restarts_its_senders_sequence_and_nothing_else_does():
     # F23: a rebooted node's counters start again at 0; its boot-up must be seen at once, whatever
     # counter its last heartbeat had (rejected, the reboot showed only as a lost node, ticks later)
-    from protocol.enums import NmtState
-
     hb = CODEC.spec("HEARTBEAT_LK")
     rx = Receiver(CODEC, max_delta_counter=3)
     assert isinstance(rx.receive_data(hb.frame_id, CODEC.encode(hb, (NmtState.OPERATIONAL, 24.0), 7)), Decoded)

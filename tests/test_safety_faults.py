@@ -194,9 +194,8 @@ CASES = [
     Case("F15", "stance", node_fault("out_of_range", "LEFT_HIP", message="STICK_LEFT", signal="force_N", value=-500.0), FAULT,
          r"SENSOR_LOST\(STICK_LEFT\)", detect=LOST - 1),
     # F23, F24: a node reboots; a drive faults (its EMCY): FAULT within a tick.
-    # (A rebooted node's boot-up frame restarts its counter: the receiver accepts it or, when the
-    # jump is beyond max_delta_counter, rejects it and re-synchronises, and the pre-operational
-    # heartbeat right after it is the detection.)
+    # (A rebooted node's boot-up heartbeat has counter 0: the receiver takes it as a restart of
+    # every counter of that node, whatever the jump, and the boot-up itself is the detection.)
     Case("F23", "swing", node_fault("reboot", "LEFT_KNEE"), FAULT, r"NODE_REBOOTED\(LEFT_KNEE\)", detect=1),
     Case("F24", "stance", node_fault("drive_fault", "RIGHT_KNEE"), FAULT, "EMCY 0x2310 from RIGHT_KNEE", detect=0),
     # F25: overruns reported by the real-time loop: 3 within the window, or one beyond overrun_max_ticks: HOLD.
