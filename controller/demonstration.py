@@ -35,6 +35,7 @@ from controller.dmp import DmpError
 
 LIFT_RAMP = 0.3  # fraction of the swing over which the foot rises (and, at the end, comes down)
 ADVANCE = (0.10, 0.85)  # fraction of the swing over which the foot moves forward
+HASH_RESOLUTION = 1e-10  # m and s: what demonstration_hash tells apart
 
 
 class DemonstrationError(DmpError):
@@ -134,11 +135,13 @@ def swing_demonstration(
 
 
 def demonstration_hash(times_s, xz) -> str:
-    """Stable identifier of a demonstration: SHA-256 (hex) of its shapes and little-endian float64 bytes.
+    """Stable identifier of a demonstration: SHA-256 (hex) of its shapes and its samples rounded to
+    ``HASH_RESOLUTION`` (little-endian float64).
 
-    Use it to check that cached fitted weights belong to the demonstration at hand. Equal arrays give
-    equal hashes on every platform; a change of the last bit of any sample changes the hash (which
-    only forces a refit).
+    Use it to check that cached fitted weights belong to the demonstration at hand. The rounding
+    makes it the same on every platform: numpy versions and CPUs differ in the last bits of the
+    same arithmetic (numpy 2.4 changed the hash of the unrounded samples), while any change of the
+    demonstration that matters to a fit moves a sample by far more than the resolution.
 
     Parameters
     ----------
@@ -150,9 +153,9 @@ def demonstration_hash(times_s, xz) -> str:
     str
         64 hexadecimal characters.
     """
-    digest = hashlib.sha256(b"aider-exo swing demonstration v1")
+    digest = hashlib.sha256(b"aider-exo swing demonstration v2")
     for array in (times_s, xz):
-        canonical = np.ascontiguousarray(np.asarray(array, dtype="<f8"))
+        canonical = np.ascontiguousarray(np.round(np.asarray(array, dtype="<f8") / HASH_RESOLUTION)).astype("<f8")
         digest.update(repr(canonical.shape).encode())
         digest.update(canonical.tobytes())
     return digest.hexdigest()
