@@ -174,11 +174,28 @@ class SensorsConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class IntentionConfig:
+    """Where the patient means to place the sticks, step by step (:mod:`sim.intention`)."""
+
+    regime: Literal["steady", "noisy", "drifting", "obstacle"] = field_spec(
+        doc="steady: always ahead_m; noisy: Gaussian white noise (the paper's); drifting: a pace that wanders slowly; "
+            "obstacle: now and then a deliberately short or long placement.")
+    ahead_m: float = field_spec(doc="Mean intended stick placement ahead of the CoM.", unit="m", min=0.1, max=0.8)
+    spread_m: float = field_spec(doc="noisy and drifting: standard deviation of the intention about ahead_m.", unit="m", min=0.0, max=0.3)
+    drift_steps: float = field_spec(doc="drifting: correlation length of the wander.", unit="steps", min=1.0, max=1000.0)
+    obstacle_probability: float = field_spec(doc="obstacle: chance of a short or long placement at a step.", min=0.0, max=1.0)
+    obstacle_offset_m: float = field_spec(doc="obstacle: that placement this much shorter or longer than ahead_m.", unit="m", min=0.0, max=0.4)
+
+
+@dataclass(frozen=True, kw_only=True)
 class PatientControlConfig:
     """The patient's part of the walk: where the sticks go, and the arms' balance control."""
 
-    stick_ahead_m: float = field_spec(doc="Nominal stick placement ahead of the front ankle.", unit="m", min=0.05, max=0.8)
-    stick_noise_m: float = field_spec(doc="Std of the placement error (the pilot's intention).", unit="m", min=0.0, max=0.2)
+    intention: IntentionConfig = field_spec(doc="Where the patient means to place the sticks, per step.")
+    stick_noise_m: float = field_spec(doc="Std of each stick's placement error about the intention.", unit="m", min=0.0, max=0.2)
+    stick_reach_margin_m: float = field_spec(
+        doc="A stick goal farther from the shoulder than the straight arm and stick less this is clamped (and counted).",
+        unit="m", min=0.0, max=0.5)
     stick_min_advance_m: float = field_spec(
         doc="A moved stick lands at least this far ahead of where it stood (the gait moves the sticks forward).",
         unit="m", min=0.0, max=0.3)

@@ -4,8 +4,10 @@ The patient is a controller inside the plant, running at a human rate (``patient
 
 1. before a stick leaves the ground it shifts the CoM into the support that remains (the feet, and
    in the alternating gait the other stick) and waits until it is there;
-2. it places the stick(s) ahead of its own body: ``stick_ahead_m`` plus Gaussian noise beyond the
-   CoM (a reach relative to the trunk, not to the exoskeleton's feet);
+2. it places the stick(s) ahead of its own body: before each step's stick moves it picks how far
+   ahead of the CoM (its intention, :mod:`sim.intention`; a reach relative to the trunk, not to the
+   exoskeleton's feet), and each stick lands there plus its own placement error, within the
+   reach of its arm (a goal beyond it is clamped, and counted in the step's record);
 3. it leans: the CoM target moves toward the sticks at a comfortable speed, until it is a
    comfortable distance behind them, or the stick load reaches what the patient's arms will bear.
 
@@ -33,6 +35,7 @@ import numpy as np
 from config.sim_schema import GaitConfig, SimConfig
 from sim.actuation import Mode
 from sim.balance import Contact, WrenchGains, desired_wrench, distribute
+from sim.intention import Intention
 from sim.kinematics import Kinematics
 from sim.linalg import clamp
 from sim.model import JOINT_ORDER, arm_ik, leg_ik
@@ -73,6 +76,9 @@ class StepRecord:
     samples: int = 0
     min_margin_m: float = math.inf
     landed: bool = False
+    intention_m: float = math.nan  # the patient's intended stick placement ahead of the CoM (sim.intention)
+    placed_ahead_m: float = math.nan  # where its sticks landed: their mean goal ahead of the CoM at the lift
+    clamped: int = 0  # stick goals moved to where the arm reaches or ahead of where the stick stood
 
     def add(self, stick_force_n: float, arm_torque_nm: float, margin_m: float) -> None:
         self.stick_force_sum_n += stick_force_n
@@ -127,6 +133,10 @@ class Walker:
         self.walking = scripted_exo
         self.kin = Kinematics(world)
         self.sensors = Sensors(world, cfg.sensors, rng)
+        # its own stream (spawned, not drawn from rng): the sensors' noise does not move the intentions
+        self.intention = Intention(cfg.patient.intention, rng.spawn(1)[0])
+        self.intended_m = math.nan  # this step's
+        self.clamps = {"reach": 0, "advance": 0}  # stick goals clamped, by reason, over the walk
         self.body = world.body
         self.gains = WrenchGains()
         self.ticks_per_control = cfg.physics.rate_hz // cfg.patient.control_hz
@@ -177,7 +187,31 @@ class Walker:
 
     def _start_stick_moves(self) -> None:
         self.stick_queue = list(SIDES) if self.together else sorted(SIDES, key=lambda s: self.tip_point(s)[0])
+        self.intended_m = self.intention.next_m()
+        self._next_step.intention_m = self.intended_m
         self._set_phase(Phase.SHIFT)
+
+    def _stick_goal(self, side: str, start: np.ndarray) -> np.ndarray:
+        """Where a lifted stick goes: the intention plus its placement error ahead of the CoM, at
+        least ``stick_min_advance_m`` ahead of where it stood and no farther than the straight arm
+        and stick reach less ``stick_reach_margin_m`` (either clamp counted in ``clamps`` and the
+        step's record)."""
+        pc = self.cfg.patient
+        sign = 1.0 if side == "l" else -1.0
+        x = float(self.kin.com[0]) + self.intended_m + float(self.rng.normal(0.0, pc.stick_noise_m))
+        y, z = sign * pc.stick_half_width_m, self.cfg.model.sticks.tip_radius_m
+        origin, rot = self.world.link_frame("trunk")
+        shoulder = origin + rot @ np.array([0.0, sign * self.body.shoulder_half_width_m, self.body.shoulder_above_hip_m])
+        reach = sum(self.body.arm_reach_m) - pc.stick_reach_margin_m
+        across = reach * reach - (y - shoulder[1]) ** 2 - (z - shoulder[2]) ** 2
+        far = shoulder[0] + math.sqrt(max(across, 0.0))
+        near = float(start[0]) + pc.stick_min_advance_m
+        reason = "reach" if x > far else "advance" if x < near else None
+        if reason is not None:
+            x = far if reason == "reach" else near
+            self.clamps[reason] += 1
+            self._next_step.clamped += 1
+        return np.array([x, y, 0.0])
 
     def _lifting(self) -> list[str]:
         """The stick(s) the patient lifts next."""
@@ -222,6 +256,11 @@ class Walker:
             state["shift_margin_m"] = round(self._shift_margin(), 4)
         return state
 
+    def intentions_m(self) -> list[float]:
+        """The intended placement of every step whose swing the patient has sensed, and last that of
+        the step in the making (its stick moves may have been drawn already)."""
+        return [s.intention_m for s in self.steps] + [self._next_step.intention_m]
+
     def patient_update(self, reading) -> None:
         s, dt = self.s, self.dt_control
         self.phase_t += dt
@@ -248,11 +287,10 @@ class Walker:
                     del self.unloading[side]
                     self.planted[side] = False
                     start = self.tip_point(side)
-                    sign = 1.0 if side == "l" else -1.0
-                    pc = self.cfg.patient
-                    ahead = com[0] + pc.stick_ahead_m + self.rng.normal(0.0, pc.stick_noise_m)
-                    goal = np.array([max(ahead, start[0] + pc.stick_min_advance_m), sign * pc.stick_half_width_m, 0.0])
+                    goal = self._stick_goal(side, start)
                     self.tip_path[side] = (start, goal, 0.0)
+                    record, ahead = self._next_step, float(goal[0] - com[0])  # the step's sticks: their mean
+                    record.placed_ahead_m = ahead if math.isnan(record.placed_ahead_m) else (record.placed_ahead_m + ahead) / 2
             for side, (start, goal, tau) in list(self.tip_path.items()):
                 tau += dt / s.stick_move_time_s
                 if tau >= 1.0 and reading.stick_force_n[SIDES.index(side)] > s.stick_planted_n:
@@ -641,7 +679,7 @@ def _minimum_jerk(a: float) -> float:
 
 
 def initial_pose(cfg: SimConfig) -> StancePose:
-    ahead = cfg.patient.stick_ahead_m
+    ahead = cfg.patient.intention.ahead_m
     w = cfg.patient.stick_half_width_m
     return StancePose(foot_x_m=(0.06, -0.06), tip_xy_m=((ahead, w), (ahead, -w)), trunk_pitch_rad=0.10, hip_x_m=0.05, knee_rad=0.08)
 

@@ -5,11 +5,13 @@ from __future__ import annotations
 import dataclasses
 import json
 
+import numpy as np
 import pytest
 
 from config import default_config_path, load_config
 from sim.sweep import episode_summary
-from sim.walk import gait_settings, walk
+from sim.walk import Walker, gait_settings, initial_pose, walk
+from sim.world import World
 from tools.cli import main
 
 SIM = dataclasses.replace(load_config(default_config_path()).sim, mode="sagittal")
@@ -90,3 +92,42 @@ def test_the_gait_is_configuration_whose_errors_name_the_key():
         with_overrides(base, {"sim.gait.lean_speed_m_s": -0.1})
     changed = gait_settings(base.sim, step_length_m=0.16)
     assert changed.step_length_m == 0.16 and changed.swing_time_s == base.sim.gait.swing_time_s
+
+
+def _with_intention(**changes):
+    patient = SIM.patient
+    return dataclasses.replace(SIM, patient=dataclasses.replace(patient, intention=dataclasses.replace(patient.intention, **changes)))
+
+
+def test_each_step_records_the_patients_intention_and_where_its_sticks_went():
+    cfg = _with_intention(regime="noisy", spread_m=0.05)
+    result = walk(cfg, gait_settings(cfg, step_length_m=0.10), seed=2, max_steps=3, max_time_s=30.0)
+    steps = result.steps
+    assert len(steps) >= 2 and len({s.intention_m for s in steps}) == len(steps)  # drawn anew for each step
+    for s in steps:
+        if not s.clamped:  # the sticks land at the intention, give or take their own placement error
+            assert s.placed_ahead_m == pytest.approx(s.intention_m, abs=4 * cfg.patient.stick_noise_m)
+    steady = walk(SIM, gait_settings(SIM, step_length_m=0.10), seed=2, max_steps=2, max_time_s=20.0)
+    assert {s.intention_m for s in steady.steps} == {SIM.patient.intention.ahead_m}
+
+
+def test_a_stick_goal_beyond_the_arms_reach_is_clamped_and_counted():
+    # 0.8 m ahead of the CoM is out of reach of a straight arm and stick from the shoulder
+    cfg = _with_intention(ahead_m=0.8)
+    with World(cfg) as world:
+        world.place(initial_pose(SIM))  # standing with the sticks where they usually are
+        walker = Walker(world, cfg, gait_settings(cfg), np.random.default_rng(0))
+        walker.start()
+        walker.intended_m = walker.intention.next_m()
+        start = walker.tip_point("l")
+        goal = walker._stick_goal("l", start)
+        shoulder_reach = sum(walker.body.arm_reach_m)
+        assert walker.clamps == {"reach": 1, "advance": 0} and walker._next_step.clamped == 1
+        assert goal[0] < walker.kin.com[0] + 0.8 and goal[0] > start[0]
+        origin, rot = world.link_frame("trunk")
+        shoulder = origin + rot @ np.array([0.0, walker.body.shoulder_half_width_m, walker.body.shoulder_above_hip_m])
+        tip = goal + np.array([0.0, 0.0, cfg.model.sticks.tip_radius_m])
+        assert np.linalg.norm(tip - shoulder) == pytest.approx(shoulder_reach - cfg.patient.stick_reach_margin_m, abs=1e-6)
+        walker.intended_m = -0.5  # behind where the stick stands: it still moves on
+        assert walker._stick_goal("l", start)[0] == pytest.approx(start[0] + cfg.patient.stick_min_advance_m)
+        assert walker.clamps == {"reach": 1, "advance": 1}
