@@ -55,6 +55,9 @@ class WalkOutcome:
     ticks: int = 0
     ratio_errors: list[float] = field(default_factory=list)  # |estimate - truth| per tick where both exist
     arm_torques_nm: list[float] = field(default_factory=list)  # ground truth: mean upper-body torque of each landed step
+    # ground truth: the patient's intended stick placement (m ahead of its CoM) per step, the one in the making last
+    intentions_m: list[float] = field(default_factory=list)
+    stick_clamps: dict[str, int] = field(default_factory=dict)  # stick goals the patient's arm reach or advance moved
     events: list[str] = field(default_factory=list)
     receiver: dict[str, Any] = field(default_factory=dict)
     theta: tuple[float, float] | None = None
@@ -97,6 +100,7 @@ class WalkOutcome:
             "stalled": self.stalled,
             "final_state": self.final_state,
             "patient": self.patient,
+            "stick_clamps": self.stick_clamps,
             "mean_stick_force_n": _round(self.mean_stick_force_n, 2),
             "mean_arm_torque_nm": _round(self.mean_arm_torque_nm, 2),
             "step_length_m": _spread(lengths),
@@ -229,6 +233,7 @@ def walk(
             outcome.sim_time_s, outcome.patient = host.patient.t, host.patient.patient_state()
             # the simulation's own steps (foot contacts): the six arm joints' absolute torques, summed
             outcome.arm_torques_nm = [st.mean_arm_torque_nm for st in host.patient.steps if st.landed]
+            outcome.intentions_m, outcome.stick_clamps = host.patient.intentions_m(), dict(host.patient.clamps)
         finally:
             host.close()
     outcome.wall_time_s = (clock.now_ns() - t0) / 1e9

@@ -29,9 +29,10 @@ import numpy as np
 from config import AiderError, Config, config_hash
 
 #: the stored result's format, part of every job's key: a result whose meaning changes gets a new
-#: number, and the walks of an older format are run again (/2: a walk ends at the controller's
-#: HOLD, ``end`` "hold CAUSE"; /1 waited out the stall time and said "stalled")
-RESULT_FORMAT = "aider-exo.walk-result/2"
+#: number, and the walks of an older format are run again (/3: the patient's intention per swing
+#: and its clamped stick goals; /2: a walk ends at the controller's HOLD, ``end`` "hold CAUSE"; /1
+#: waited out the stall time and said "stalled")
+RESULT_FORMAT = "aider-exo.walk-result/3"
 
 
 class ExperimentError(AiderError):
@@ -99,6 +100,7 @@ def run_walk(cfg: Config, job: WalkJob) -> dict[str, Any]:
     # the estimator's error against the ground truth is `aider-exo walk`'s to report, not the learner's
     outcome = walk(cfg, cycles=job.cycles, seed=job.seed, mode=job.mode, policy=policy, compare_ratio=False)
     landed = outcome.landed
+    swings = [s for s in outcome.steps if s.swing_tick >= 0]
     forces = [s.mean_stick_force_n for s in landed]
     torques = outcome.arm_torques_nm
     complete = len(landed) >= 2 * job.cycles
@@ -118,9 +120,12 @@ def run_walk(cfg: Config, job: WalkJob) -> dict[str, Any]:
         "step_stick_force_n": [round(f, 4) for f in forces],
         "step_arm_torque_nm": [round(t, 4) for t in torques],
         # every step whose swing started, the last one too when it did not land: (length, X_CoM/X_SP at its start, landed)
-        "swings": [[round(s.length_m, 5), round(s.x_ratio, 5), s.landed] for s in outcome.steps if s.swing_tick >= 0],
-        "mean_stick_force_n": _mean(outcome.mean_stick_force_n),  # the walk's own means (tools.pipeline.WalkOutcome)
-        "mean_arm_torque_nm": _mean(outcome.mean_arm_torque_nm),
+        "swings": [[round(s.length_m, 5), round(s.x_ratio, 5), s.landed] for s in swings],
+        # the simulated patient's intended stick placement ahead of its CoM before each of those swings
+        "swing_intention_m": _swing_intentions(outcome.intentions_m, len(swings)),
+        "stick_clamps": outcome.stick_clamps,
+        "mean_stick_force_n": _round(outcome.mean_stick_force_n),  # the walk's own means (tools.pipeline.WalkOutcome)
+        "mean_arm_torque_nm": _round(outcome.mean_arm_torque_nm),
         "sim_time_s": round(outcome.sim_time_s, 2),
         "wall_time_s": round(outcome.wall_time_s, 2),
     }
@@ -136,8 +141,16 @@ def _end(outcome: Any) -> str:
     return f"hold {outcome.hold}" if outcome.hold else "stalled"
 
 
-def _mean(value: float) -> float | None:
-    return round(value, 4) if math.isfinite(value) else None
+def _swing_intentions(intentions_m: list[float], swings: int) -> list[float | None]:
+    """The intention before each of the controller's ``swings``: the patient's steps in order, the
+    one in the making for a swing the patient had not sensed yet when the walk ended."""
+    if not intentions_m:
+        return [None] * swings
+    return [_round(intentions_m[min(i, len(intentions_m) - 1)], 5) for i in range(swings)]
+
+
+def _round(value: float, digits: int = 4) -> float | None:
+    return round(value, digits) if math.isfinite(value) else None
 
 
 # -- the pool ---------------------------------------------------------------------------------
