@@ -193,8 +193,10 @@ def test_cli_errors_are_one_line(capsys, tmp_path):
 # -- what makes the model fall (random step lengths) -------------------------------------------
 
 
-def _walk_result(seed: int, swings: list[tuple[float, float, bool]], fell: bool, end: str = "walked") -> dict:
-    return {"job": {"seed": seed}, "swings": [list(s) for s in swings], "fell": fell, "end": end}
+def _walk_result(seed: int, swings: list[tuple[float, float, bool]], fell: bool, end: str = "walked",
+                 force_n: float = 50.0, fixed_m: float | None = None) -> dict:
+    return {"job": {"seed": seed, "fixed_m": fixed_m}, "swings": [list(s) for s in swings], "fell": fell, "end": end,
+            "step_stick_force_n": [force_n for s in swings if s[2]], "swing_intention_m": [0.35] * len(swings)}
 
 
 def test_falls_analysis_splits_the_ends_by_length_ratio_and_previous_step():
@@ -244,3 +246,52 @@ def test_a_random_length_job_needs_a_valid_span():
         WalkJob(seed=0, cycles=1, fixed_m=0.1, random_m=(0.1, 0.2))
     with pytest.raises(ExperimentError, match="min <= max"):
         WalkJob(seed=0, cycles=1, random_m=(0.2, 0.1))
+
+
+# -- which step fits which intention (fixed lengths crossed with X_CoM/X_SP) ---------------------
+
+
+def _cell(seed: int, length: float, x: float, force_n: float | None) -> dict:
+    """Four swings of ``length`` starting at X_CoM/X_SP about ``x``: all landed at ``force_n``, or
+    (``None``) the walk ended in the fourth."""
+    xs = [x - 0.01, x, x + 0.01, x + 0.005]
+    if force_n is None:
+        return _walk_result(seed, [(length, v, i < 3) for i, v in enumerate(xs)], True, "hip height 0.5 m", 70.0, length)
+    return _walk_result(seed, [(length, v, True) for v in xs], False, "walked", force_n, length)
+
+
+def test_intention_analysis_finds_the_best_step_per_bin_and_whether_one_length_would_do():
+    from tools.experiment.intention import analyse, lengths, report_lines
+
+    assert lengths(0.06, 0.22, 0.02) == [0.06, 0.08, 0.1, 0.12, 0.14, 0.16, 0.18, 0.2, 0.22]
+    # after a short placement (X low) only the short step stands; after a long one the long step costs least
+    table = {0.08: (60.0, 70.0, 80.0), 0.12: (None, 60.0, 70.0), 0.16: (None, None, 60.0)}
+    results = [_cell(i, length, x, f) for i, (length, forces) in enumerate(table.items())
+               for x, f in zip((0.35, 0.45, 0.55), forces)]
+    s = analyse(results, bins=3)
+    assert s["swings"] == 36 and s["lengths_m"] == [0.08, 0.12, 0.16]
+    assert [e["best_length_m"] for e in s["best"]] == [0.08, 0.12, 0.16]
+    assert [e["best_stick_force_n"] for e in s["best"]] == [60.0, 60.0, 60.0]
+    assert s["spearman_best_length_x_ratio"] == pytest.approx(1.0)
+    assert s["lengths_fit_for_every_bin"] == []  # 0.08 never falls but costs 20 N more where X is high
+    cell = next(c for c in s["cells"] if c["length_m"] == 0.12 and c["bin"] == 0)
+    assert (cell["swings"], cell["falls"], cell["falls_per_step"]) == (4, 1, 0.25)
+    assert "0.08 m (60.0 N)" in report_lines(s)[-1]
+    # a patient whose every step fits one length: that length would do
+    same = analyse([_cell(i, 0.12, x, 55.0) for i, x in enumerate((0.35, 0.45, 0.55))], bins=3)
+    assert same["lengths_fit_for_every_bin"] == [0.12] and same["spearman_best_length_x_ratio"] is None
+
+
+def test_intention_experiment_walks_fixed_lengths_with_a_varying_intention(tmp_path):
+    code = main(["experiment", "intention", "--out", str(tmp_path), "--workers", "0", "--walks", "1", "--min", "0.10",
+                 "--max", "0.12", "--bins", "2", "--set", "controller.learning.steps_per_rollout=1", "--quiet", "--json"])
+    assert code == 0
+    s = json.loads((tmp_path / "intention.json").read_text())
+    assert s["walks"] == 2 and s["lengths_m"] == [0.1, 0.12] and len(s["cells"]) == 4
+    with (tmp_path / "intention.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert {float(r["length_m"]) for r in rows} == {0.10, 0.12}
+    assert len({r["intention_m"] for r in rows}) > 1  # the noisy regime: each step its own intention
+    for name in ("intention.png", "intention.md"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert main(["experiment", "intention", "--out", str(tmp_path), "--every", "0", "--quiet"]) == 1

@@ -64,6 +64,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     fp.add_argument("--max", type=float, default=0.19, dest="max_m", help="longest step drawn, m (default 0.19)")
     fp.set_defaults(func=run_falls)
 
+    ip = xsub.add_parser("intention", help="fixed step lengths crossed with X_CoM/X_SP bins: which step fits which intention")
+    common(ip)
+    ip.add_argument("--seed", type=int, default=0, help="seed of the walks (default 0)")
+    ip.add_argument("--walks", type=positive_int, default=10, help="walks (patients) per step length (default 10)")
+    ip.add_argument("--min", type=float, default=0.06, dest="min_m", help="shortest step, m (default 0.06)")
+    ip.add_argument("--max", type=float, default=0.22, dest="max_m", help="longest step, m (default 0.22)")
+    ip.add_argument("--every", type=float, default=0.02, dest="every_m", help="step length spacing, m (default 0.02)")
+    ip.add_argument("--bins", type=positive_int, default=4, help="X_CoM/X_SP bins of equal counts (default 4)")
+    ip.add_argument("--regime", choices=("noisy", "drifting", "obstacle"), default="noisy",
+                    help="the patient's intention (sim.patient.intention.regime; default noisy)")
+    ip.add_argument("--spread", type=float, metavar="M",
+                    help="its spread, m (sim.patient.intention.spread_m; default the configured one)")
+    ip.set_defaults(func=run_intention)
+
     ap = xsub.add_parser("all", help="learning from A and B, then the comparison with the learned theta; figures, CSV, report")
     common(ap)
     seeds(ap)
@@ -122,26 +136,59 @@ def run_all(args: argparse.Namespace) -> int:
     return _finish(args, plan)
 
 
-def run_falls(args: argparse.Namespace) -> int:
-    from tools.experiment.experiment import Progress
-    from tools.experiment.falls import falls_jobs, falls_run, report_lines
-    from tools.experiment.report import write_falls
-    from tools.experiment.runner import ExperimentError, WalkPool
-    from tools.experiment.schedule import drive
+def _check_span(plan, lo: float, hi: float) -> None:
+    from tools.experiment.runner import ExperimentError
 
-    plan = _plan(args)
     bounds = plan.cfg.controller.step
-    if not bounds.min_m <= args.min_m <= args.max_m <= bounds.max_m:
-        raise ExperimentError(f"--min {args.min_m} and --max {args.max_m} must lie in the safe range "
+    if not bounds.min_m <= lo <= hi <= bounds.max_m:
+        raise ExperimentError(f"--min {lo} and --max {hi} must lie in the safe range "
                               f"[{bounds.min_m}, {bounds.max_m}] m (controller.step), min <= max")
-    jobs = falls_jobs(seed=args.seed, walks=args.walks, span=(args.min_m, args.max_m), cycles=plan.cycles, mode=args.mode)
+
+
+def _walk_batch(args: argparse.Namespace, plan, jobs) -> list:
+    """Every job of ``jobs`` on the pool (progress bar, stored under OUT/cache, a stop keeps them)."""
+    from tools.experiment.experiment import Progress
+    from tools.experiment.runner import WalkPool
+    from tools.experiment.schedule import batch, drive
+
     bar = Progress(len(jobs), enabled=not args.quiet)
     with StopSignals() as signals, WalkPool(plan.cfg, plan.workers, args.out / "cache", on_done=bar) as pool:
-        results = drive(pool, {"falls": falls_run(jobs)}, stop=lambda: signals.requested)["falls"]
-    s = write_falls(results, args.out)
+        return drive(pool, {"batch": batch(jobs)}, stop=lambda: signals.requested)["batch"]
+
+
+def _print(args: argparse.Namespace, summary: dict, lines: list[str], files: str) -> int:
     if args.json:
-        print_json(s)
+        print_json(summary)
     else:
-        print("\n".join(report_lines(s)))
-        print(f"written to {args.out}/: falls.csv, falls.json, falls.md, falls.png", file=sys.stderr)
+        print("\n".join(lines))
+        print(f"written to {args.out}/: {files}", file=sys.stderr)
     return 0
+
+
+def run_falls(args: argparse.Namespace) -> int:
+    from tools.experiment.falls import falls_jobs, report_lines
+    from tools.experiment.report import write_falls
+
+    plan = _plan(args)
+    _check_span(plan, args.min_m, args.max_m)
+    jobs = falls_jobs(seed=args.seed, walks=args.walks, span=(args.min_m, args.max_m), cycles=plan.cycles, mode=args.mode)
+    s = write_falls(_walk_batch(args, plan, jobs), args.out)
+    return _print(args, s, report_lines(s), "falls.csv, falls.json, falls.md, falls.png")
+
+
+def run_intention(args: argparse.Namespace) -> int:
+    from tools.experiment.intention import intention_jobs, lengths, report_lines
+    from tools.experiment.report import write_intention
+    from tools.experiment.runner import ExperimentError
+
+    args.set = [*args.set, f"sim.patient.intention.regime={args.regime}"]
+    if args.spread is not None:
+        args.set.append(f"sim.patient.intention.spread_m={args.spread}")
+    plan = _plan(args)
+    _check_span(plan, args.min_m, args.max_m)
+    if args.every_m <= 0:
+        raise ExperimentError(f"--every must be > 0, got {args.every_m}")
+    grid = lengths(args.min_m, args.max_m, args.every_m)
+    jobs = intention_jobs(seed=args.seed, walks=args.walks, lengths_m=grid, cycles=plan.cycles, mode=args.mode)
+    s = write_intention(_walk_batch(args, plan, jobs), args.out, args.bins)
+    return _print(args, s, report_lines(s), "intention.csv, intention.json, intention.md, intention.png")

@@ -12,8 +12,8 @@ band) and by the length of the step before it.
 
 from __future__ import annotations
 
+import math
 from collections import Counter
-from collections.abc import Generator
 from dataclasses import dataclass
 from typing import Any
 
@@ -49,12 +49,6 @@ def falls_jobs(*, seed: int, walks: int, span: tuple[float, float], cycles: int,
     return [WalkJob(seed=walk_seed(seed, 200, i), cycles=cycles, random_m=span, mode=mode) for i in range(walks)]
 
 
-def falls_run(jobs: list[WalkJob]) -> Generator[list[WalkJob], list[dict[str, Any]], list[dict[str, Any]]]:
-    """One batch of every job (a run for :func:`tools.experiment.schedule.drive`)."""
-    results = yield jobs
-    return results
-
-
 @dataclass(frozen=True)
 class Swing:
     walk_seed: int
@@ -65,19 +59,24 @@ class Swing:
     ended: bool  # the walk ended in this step, before it landed
     ended_after: bool  # the walk ended in the double support after this step landed
     end: str  # how the walk ended (for the step it ended in or after)
+    stick_force_n: float  # the landed step's mean stick force (nan: it did not land)
+    intention_m: float  # the patient's intended stick placement ahead of its CoM before this swing (nan: unknown)
 
 
 def swings(results: list[dict[str, Any]]) -> list[Swing]:
+    """Every swing of ``results`` (walk results of :func:`tools.experiment.runner.run_walk`)."""
     out = []
     for r in results:
-        rows = r["swings"]
+        rows, forces = r["swings"], r["step_stick_force_n"]
+        intentions = r.get("swing_intention_m") or [None] * len(rows)
         # A walk that ended with every swing landed ended in double support: after its last step.
         after_last = bool(r["fell"] and rows and rows[-1][2])
-        for i, (length, ratio, landed) in enumerate(rows):
+        for i, ((length, ratio, landed), intention) in enumerate(zip(rows, intentions)):
             ended = not landed and r["fell"]
             after = after_last and i == len(rows) - 1
+            force = forces[i] if landed and i < len(forces) else math.nan
             out.append(Swing(r["job"]["seed"], i, length, ratio, rows[i - 1][0] if i else None, ended, after,
-                             r["end"] if ended or after else ""))
+                             r["end"] if ended or after else "", force, math.nan if intention is None else intention))
     return out
 
 

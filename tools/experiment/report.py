@@ -110,6 +110,20 @@ def write_falls(results: list[dict[str, Any]], out: Path) -> dict[str, Any]:
     return s
 
 
+def write_intention(results: list[dict[str, Any]], out: Path, bins: int) -> dict[str, Any]:
+    """The fixed lengths crossed with X_CoM/X_SP (:mod:`tools.experiment.intention`) under ``out``:
+    intention.csv, intention.json, intention.png and intention.md; returns the summary."""
+    from tools.experiment import intention
+
+    out.mkdir(parents=True, exist_ok=True)
+    s = intention.analyse(results, bins)
+    _write(out / "intention.csv", _csv(intention.csv_rows(results)))
+    intention.figure(results, s, out / "intention.png", _canvas, _save)
+    _write(out / "intention.json", json.dumps(s, indent=2) + "\n")
+    _write(out / "intention.md", "# Which step fits which intention\n\n" + "\n".join(intention.report_lines(s)) + "\n")
+    return s
+
+
 def _mean(values: list[float]) -> float | None:
     return round(float(np.mean(values)), 5) if values else None
 

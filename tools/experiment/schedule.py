@@ -52,3 +52,9 @@ def drive(pool: WalkPool, runs: dict[str, Run], stop: Callable[[], bool] | None 
                 del waiting[name]
                 advance(name, run, [f.result() for f in fs])
     return outcomes
+
+
+def batch(jobs: list[WalkJob]) -> Run:
+    """A run of one batch: every job at once, its outcome their results (in order)."""
+    results = yield jobs
+    return results
