@@ -72,8 +72,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     ip.add_argument("--max", type=float, default=0.22, dest="max_m", help="longest step, m (default 0.22)")
     ip.add_argument("--every", type=float, default=0.02, dest="every_m", help="step length spacing, m (default 0.02)")
     ip.add_argument("--bins", type=positive_int, default=4, help="X_CoM/X_SP bins of equal counts (default 4)")
-    ip.add_argument("--regime", choices=("noisy", "drifting", "obstacle"), default="noisy",
-                    help="the patient's intention (sim.patient.intention.regime; default noisy)")
+    ip.add_argument("--regime", choices=("steady", "noisy", "drifting", "obstacle"), default="noisy",
+                    help="the patient's intention (sim.patient.intention.regime; default noisy: the bins need a varying one)")
     ip.add_argument("--spread", type=float, metavar="M",
                     help="its spread, m (sim.patient.intention.spread_m; default the configured one)")
     ip.set_defaults(func=run_intention)
