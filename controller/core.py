@@ -516,6 +516,7 @@ class ControllerCore:
             aim = self.gait.start_swing(leg, est, goal.length_m)
             step = self._step
             step.leg, step.swing_tick, step.x_ratio, step.theta = "lr"[leg], tick, float(est.x_ratio_planted), theta
+            step.x_ratio_stance = self.estimator.fore_aft_ratio(float(est.com[0]), [float(est.ankles[1 - leg][0]), *est.tips[:, 0].tolist()])
             step.length_m, step.requested_m, step.clamped, step.aimed_m = goal.length_m, goal.requested_m, goal.clamped, aim
             self.steps.append(step)
             events.append(f"step {step.index} ({step.leg}): {goal.length_m:.3f} m at X_CoM/X_SP {est.x_ratio_planted:.2f}"

@@ -160,10 +160,10 @@ class StateEstimator:
         support = self._pivot_polygon(ankles, tips, feet_loaded, sticks_loaded)
         planted = [ankles[0][0], ankles[1][0], tips[0][0], tips[1][0]]
         return Estimate(np.array(com), np.array(ankles), np.array(tips), feet_loaded, sticks_loaded, floor_z,
-                        np.array(support).reshape(-1, 2), self._fore_aft_ratio(com[0], [p[0] for p in support]),
-                        self._fore_aft_ratio(com[0], planted), (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]))
+                        np.array(support).reshape(-1, 2), self.fore_aft_ratio(com[0], [p[0] for p in support]),
+                        self.fore_aft_ratio(com[0], planted), (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]))
 
-    def _fore_aft_ratio(self, com_x: float, xs: list[float]) -> float:
+    def fore_aft_ratio(self, com_x: float, xs: list[float]) -> float:
         """The CoM's place between the rear-most and the front-most of ``xs``; nan for a support
         shorter than ``min_support_m`` fore-aft, which says nothing fore-aft."""
         if not xs:

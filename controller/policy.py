@@ -45,6 +45,8 @@ class StepRecord:
     requested_m: float = math.nan
     clamped: bool = False
     x_ratio: float = math.nan  # X_CoM / X_SP at the swing's start
+    # the same over the support that carries the swing: the stance ankle to the front-most stick tip
+    x_ratio_stance: float = math.nan
     theta: tuple[float, float] | None = None
     landed: bool = False
     force_sum_n: float = 0.0
@@ -63,7 +65,7 @@ class StepRecord:
         return {
             "index": self.index, "leg": self.leg, "start_tick": self.start_tick, "swing_tick": self.swing_tick,
             "end_tick": self.end_tick, "length_m": _r(self.length_m), "aimed_m": _r(self.aimed_m), "placed_m": _r(self.placed_m), "requested_m": _r(self.requested_m),
-            "clamped": self.clamped, "x_ratio": _r(self.x_ratio),
+            "clamped": self.clamped, "x_ratio": _r(self.x_ratio), "x_ratio_stance": _r(self.x_ratio_stance),
             "theta": None if self.theta is None else [round(v, 4) for v in self.theta],
             "landed": self.landed, "mean_stick_force_n": _r(self.mean_stick_force_n, 2),
         }

@@ -272,14 +272,14 @@ def test_intention_analysis_finds_the_best_step_per_bin_and_whether_one_length_w
     assert s["swings"] == 36 and s["lengths_m"] == [0.08, 0.12, 0.16]
     assert [e["best_length_m"] for e in s["best"]] == [0.08, 0.12, 0.16]
     assert [e["best_stick_force_n"] for e in s["best"]] == [60.0, 60.0, 60.0]
-    assert s["spearman_best_length_x_ratio"] == pytest.approx(1.0)
+    assert s["spearman_best_length"] == pytest.approx(1.0)
     assert s["lengths_fit_for_every_bin"] == []  # 0.08 never falls but costs 20 N more where X is high
     cell = next(c for c in s["cells"] if c["length_m"] == 0.12 and c["bin"] == 0)
     assert (cell["swings"], cell["falls"], cell["falls_per_step"]) == (4, 1, 0.25)
     assert "0.08 m (60.0 N)" in report_lines(s)[-1]
     # a patient whose every step fits one length: that length would do
     same = analyse([_cell(i, 0.12, x, 55.0) for i, x in enumerate((0.35, 0.45, 0.55))], bins=3)
-    assert same["lengths_fit_for_every_bin"] == [0.12] and same["spearman_best_length_x_ratio"] is None
+    assert same["lengths_fit_for_every_bin"] == [0.12] and same["spearman_best_length"] is None
 
 
 def test_intention_experiment_walks_fixed_lengths_with_a_varying_intention(tmp_path):
@@ -292,6 +292,13 @@ def test_intention_experiment_walks_fixed_lengths_with_a_varying_intention(tmp_p
         rows = list(csv.DictReader(f))
     assert {float(r["length_m"]) for r in rows} == {0.10, 0.12}
     assert len({r["intention_m"] for r in rows}) > 1  # the noisy regime: each step its own intention
+    # over the support that carries the swing the CoM sits farther back than over all four contacts
+    assert all(float(r["x_ratio_stance"]) < float(r["x_ratio"]) for r in rows)
     for name in ("intention.png", "intention.md"):
         assert (tmp_path / name).stat().st_size > 0
+    assert main(["experiment", "intention", "--out", str(tmp_path), "--workers", "0", "--walks", "1", "--min", "0.10",
+                 "--max", "0.12", "--bins", "2", "--set", "controller.learning.steps_per_rollout=1", "--quiet", "--json",
+                 "--bin-by", "stance"]) == 0  # the same walks, from the cache
+    stance = json.loads((tmp_path / "intention.json").read_text())
+    assert stance["bin_by"] == "stance" and stance["swings"] == s["swings"]
     assert main(["experiment", "intention", "--out", str(tmp_path), "--every", "0", "--quiet"]) == 1

@@ -76,6 +76,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     help="the patient's intention (sim.patient.intention.regime; default noisy: the bins need a varying one)")
     ip.add_argument("--spread", type=float, metavar="M",
                     help="its spread, m (sim.patient.intention.spread_m; default the configured one)")
+    ip.add_argument("--bin-by", choices=("planted", "stance", "intention"), default="planted",
+                    help="bin the swings by X_CoM/X_SP at their start over both ankles and both tips (planted: the "
+                         "compensation's input, default), over the support that carries the swing (stance: stance ankle "
+                         "to the front-most tip), or by the patient's intention (the physics alone)")
     ip.set_defaults(func=run_intention)
 
     ap = xsub.add_parser("all", help="learning from A and B, then the comparison with the learned theta; figures, CSV, report")
@@ -190,5 +194,5 @@ def run_intention(args: argparse.Namespace) -> int:
         raise ExperimentError(f"--every must be > 0, got {args.every_m}")
     grid = lengths(args.min_m, args.max_m, args.every_m)
     jobs = intention_jobs(seed=args.seed, walks=args.walks, lengths_m=grid, cycles=plan.cycles, mode=args.mode)
-    s = write_intention(_walk_batch(args, plan, jobs), args.out, args.bins)
+    s = write_intention(_walk_batch(args, plan, jobs), args.out, args.bins, args.bin_by)
     return _print(args, s, report_lines(s), "intention.csv, intention.json, intention.md, intention.png")

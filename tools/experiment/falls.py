@@ -61,6 +61,7 @@ class Swing:
     end: str  # how the walk ended (for the step it ended in or after)
     stick_force_n: float  # the landed step's mean stick force (nan: it did not land)
     intention_m: float  # the patient's intended stick placement ahead of its CoM before this swing (nan: unknown)
+    x_ratio_stance: float  # X_CoM/X_SP at the swing's start over the stance ankle and the tips (nan: unknown)
 
 
 def swings(results: list[dict[str, Any]]) -> list[Swing]:
@@ -69,15 +70,20 @@ def swings(results: list[dict[str, Any]]) -> list[Swing]:
     for r in results:
         rows, forces = r["swings"], r["step_stick_force_n"]
         intentions = r.get("swing_intention_m") or [None] * len(rows)
+        stance = r.get("swing_x_ratio_stance") or [None] * len(rows)
         # A walk that ended with every swing landed ended in double support: after its last step.
         after_last = bool(r["fell"] and rows and rows[-1][2])
-        for i, ((length, ratio, landed), intention) in enumerate(zip(rows, intentions)):
+        for i, ((length, ratio, landed), intention, ratio_stance) in enumerate(zip(rows, intentions, stance)):
             ended = not landed and r["fell"]
             after = after_last and i == len(rows) - 1
             force = forces[i] if landed and i < len(forces) else math.nan
             out.append(Swing(r["job"]["seed"], i, length, ratio, rows[i - 1][0] if i else None, ended, after,
-                             r["end"] if ended or after else "", force, math.nan if intention is None else intention))
+                             r["end"] if ended or after else "", force, _nan(intention), _nan(ratio_stance)))
     return out
+
+
+def _nan(value: float | None) -> float:
+    return math.nan if value is None else value
 
 
 def _rate(rows: list[Swing]) -> dict[str, Any]:

@@ -55,21 +55,30 @@ def _quantiles(x: np.ndarray) -> dict[str, float | None]:
             "p10": round(float(p10), 4), "p50": round(float(p50), 4), "p90": round(float(p90), 4)}
 
 
-def analyse(results: list[dict[str, Any]], bins: int) -> dict[str, Any]:
-    """The grid of falls and forces by (fixed length, X_CoM/X_SP bin), the best step per bin and
-    the checks of the module doc."""
-    rows = [s for s in swings(results) if math.isfinite(s.x_ratio)]
-    x = np.array([s.x_ratio for s in rows])
-    edges = np.percentile(x, np.linspace(0, 100, bins + 1)) if len(x) else np.zeros(bins + 1)
-    lengths_m = sorted({r["job"]["fixed_m"] for r in results})
+#: what the swings are binned by: X_CoM/X_SP at the swing's start as the compensation reads it
+#: (``planted``: between the rear-most and front-most of both ankles and both tips), over the
+#: support that carries the swing (``stance``: the stance ankle to the front-most tip), or the
+#: patient's intention itself (``intention``: what the controller cannot see, the physics alone)
+BIN_BY = {"planted": "X_CoM/X_SP (planted)", "stance": "X_CoM/X_SP (stance)", "intention": "intended placement (m)"}
 
-    def bin_of(s: Swing) -> int:
-        return int(np.clip(np.searchsorted(edges, s.x_ratio, side="right") - 1, 0, bins - 1))
+
+def _value(s: Swing, by: str) -> float:
+    return {"planted": s.x_ratio, "stance": s.x_ratio_stance, "intention": s.intention_m}[by]
+
+
+def analyse(results: list[dict[str, Any]], bins: int, by: str = "planted") -> dict[str, Any]:
+    """The grid of falls and forces by (fixed length, bin of ``by``), the best step per bin and
+    the checks of the module doc."""
+    rows = [s for s in swings(results) if math.isfinite(_value(s, by))]
+    v = np.array([_value(s, by) for s in rows])
+    edges = np.percentile(v, np.linspace(0, 100, bins + 1)) if len(v) else np.zeros(bins + 1)
+    lengths_m = sorted({r["job"]["fixed_m"] for r in results})
+    bin_of = {id(s): int(np.clip(np.searchsorted(edges, x, side="right") - 1, 0, bins - 1)) for s, x in zip(rows, v)}
 
     cells = []
     for length in lengths_m:
         for b in range(bins):
-            cell = [s for s in rows if s.length_m == length and bin_of(s) == b]
+            cell = [s for s in rows if s.length_m == length and bin_of[id(s)] == b]
             forces = [s.stick_force_n for s in cell if math.isfinite(s.stick_force_n)]
             cells.append({
                 "length_m": length, "bin": b, "swings": len(cell), "falls": _falls(cell),
@@ -82,12 +91,11 @@ def analyse(results: list[dict[str, Any]], bins: int) -> dict[str, Any]:
         ok = [grid[(length, b)] for length in lengths_m
               if grid[(length, b)]["swings"] >= MIN_SWINGS and grid[(length, b)]["falls"] == 0
               and grid[(length, b)]["stick_force_n"] is not None]
-        in_bin = [s.x_ratio for s in rows if bin_of(s) == b]
+        in_bin = [x for s, x in zip(rows, v) if bin_of[id(s)] == b]
         top = min(ok, key=lambda c: c["stick_force_n"]) if ok else None
-        best.append({"bin": b, "x_ratio_from": round(float(edges[b]), 4), "x_ratio_to": round(float(edges[b + 1]), 4),
-                     "x_ratio_median": round(float(np.median(in_bin)), 4) if len(in_bin) else None,
+        best.append({"bin": b, "from": round(float(edges[b]), 4), "to": round(float(edges[b + 1]), 4),
+                     "median": round(float(np.median(in_bin)), 4) if in_bin else None,
                      "best_length_m": top["length_m"] if top else None, "best_stick_force_n": top["stick_force_n"] if top else None})
-    rho = _spearman([(e["x_ratio_median"], e["best_length_m"]) for e in best if e["best_length_m"] is not None])
     # a fixed length that would do in every bin: no fall anywhere, and within NEAR_N of each bin's best
     sufficient = []
     for length in lengths_m:
@@ -97,18 +105,21 @@ def analyse(results: list[dict[str, Any]], bins: int) -> dict[str, Any]:
                    and own[e["bin"]]["stick_force_n"] <= e["best_stick_force_n"] + NEAR_N) for e in best)
         if fall_free and near:
             sufficient.append(length)
-    intentions = np.array([s.intention_m for s in rows if math.isfinite(s.intention_m)])
-    follow = _spearman([(s.intention_m, s.x_ratio) for s in rows if math.isfinite(s.intention_m)])
+    every = swings(results)
     clamps: dict[str, int] = {}
     for r in results:
         for reason, n in (r.get("stick_clamps") or {}).items():
             clamps[reason] = clamps.get(reason, 0) + n
     return {
         "walks": len(results), "walks_per_length": len(results) // max(len(lengths_m), 1), "lengths_m": lengths_m,
-        "bins": bins, "swings": len(rows), "x_ratio": _quantiles(x), "intention_m": _quantiles(intentions),
-        "spearman_intention_x_ratio": follow,
-        "stick_clamps": clamps, "cells": cells, "best": best,
-        "spearman_best_length_x_ratio": rho,
+        "bins": bins, "bin_by": by, "swings": len(rows), "clamped_stick_goals": clamps,
+        # every swing's X_CoM/X_SP both ways and intention, and how well each ratio follows the intention
+        **{f"{key}_spread": _quantiles(np.array([x for s in every if math.isfinite(x := _value(s, key))])) for key in BIN_BY},
+        "spearman_intention": {key: _spearman([(s.intention_m, _value(s, key)) for s in every
+                                               if math.isfinite(s.intention_m) and math.isfinite(_value(s, key))])
+                               for key in ("planted", "stance")},
+        "cells": cells, "best": best,
+        "spearman_best_length": _spearman([(e["median"], e["best_length_m"]) for e in best if e["best_length_m"] is not None]),
         "lengths_fit_for_every_bin": sufficient,
     }
 
@@ -122,25 +133,25 @@ def _spearman(pairs: list[tuple[float, float]]) -> float | None:
 
 def csv_rows(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return [{"walk_seed": s.walk_seed, "step": s.index, "length_m": s.length_m, "x_ratio": s.x_ratio,
-             "intention_m": s.intention_m, "stick_force_n": s.stick_force_n, "ended": s.ended,
+             "x_ratio_stance": s.x_ratio_stance, "intention_m": s.intention_m, "stick_force_n": s.stick_force_n, "ended": s.ended,
              "ended_after": s.ended_after, "end": s.end} for s in swings(results)]
 
 
 def figure(results: list[dict[str, Any]], s: dict[str, Any], path, canvas, save) -> None:
-    """(a) falls per step and (b) mean stick force per (fixed length, X_CoM/X_SP bin), the best
-    step of each bin marked; (c) X_CoM/X_SP at each swing's start against the patient's intention."""
+    """(a) falls per step and (b) mean stick force per (fixed length, bin), the best step of each
+    bin marked; (c) X_CoM/X_SP at each swing's start, both ways, against the patient's intention."""
     fig, ax = canvas(1, 3, (15, 4.8))
     a, b, c = ax[0]
     lengths_m, bins = s["lengths_m"], s["bins"]
     grid = {(e["length_m"], e["bin"]): e for e in s["cells"]}
-    labels = [f"{e['x_ratio_from']:.2f}-{e['x_ratio_to']:.2f}" for e in s["best"]]
+    labels = [f"{e['from']:.2f}-{e['to']:.2f}" for e in s["best"]]
     for axis, key, title, cmap, scale in ((a, "falls_per_step", "(a) falls per step (%)", "Reds", 100.0),
                                           (b, "stick_force_n", "(b) mean stick force (N)", "viridis", 1.0)):
         m = np.array([[np.nan if grid[(length, j)][key] is None else scale * grid[(length, j)][key] for j in range(bins)]
                       for length in lengths_m])
         image = axis.imshow(m, origin="lower", aspect="auto", cmap=cmap)
         fig.colorbar(image, ax=axis)
-        for i, length in enumerate(lengths_m):
+        for i in range(len(lengths_m)):
             for j in range(bins):
                 if np.isfinite(m[i, j]):
                     axis.text(j, i, f"{m[i, j]:.0f}", ha="center", va="center", fontsize=7, color="w" if key == "stick_force_n" else "k")
@@ -150,31 +161,33 @@ def figure(results: list[dict[str, Any]], s: dict[str, Any], path, canvas, save)
             axis.legend(loc="upper left", fontsize=7)
         axis.set_xticks(range(bins), labels, fontsize=8)
         axis.set_yticks(range(len(lengths_m)), [f"{v:.2f}" for v in lengths_m])
-        axis.set(xlabel="X_CoM/X_SP at the swing's start (bin)", ylabel="fixed step length (m)", title=title)
-    rows = [r for r in swings(results) if math.isfinite(r.x_ratio) and math.isfinite(r.intention_m)]
-    bad = [r for r in rows if r.ended or r.ended_after]
-    good = [r for r in rows if not (r.ended or r.ended_after)]
-    c.scatter([r.intention_m for r in good], [r.x_ratio for r in good], s=6, c="tab:gray", alpha=0.5, label="walked on")
-    c.scatter([r.intention_m for r in bad], [r.x_ratio for r in bad], s=25, c="tab:red", marker="x", label="the walk ended in or after it")
+        axis.set(xlabel=f"{BIN_BY[s['bin_by']]} at the swing's start (bin)", ylabel="fixed step length (m)", title=title)
+    rows = [r for r in swings(results) if math.isfinite(r.intention_m)]
+    for key, colour in (("planted", "tab:blue"), ("stance", "tab:green")):
+        pts = [(r.intention_m, _value(r, key), r.ended or r.ended_after) for r in rows if math.isfinite(_value(r, key))]
+        c.scatter([p[0] for p in pts if not p[2]], [p[1] for p in pts if not p[2]], s=6, c=colour, alpha=0.4, label=BIN_BY[key])
+        c.scatter([p[0] for p in pts if p[2]], [p[1] for p in pts if p[2]], s=25, c=colour, marker="x")
     c.set(xlabel="intended stick placement ahead of the CoM (m)", ylabel="X_CoM/X_SP at the swing's start",
-          title="(c) does the lean follow the intention?")
+          title="(c) does the lean follow the intention? (x: the walk ended in or after it)")
     c.legend(loc="best", fontsize=8)
     save(fig, path)
 
 
 def report_lines(s: dict[str, Any]) -> list[str]:
-    x, it = s["x_ratio"], s["intention_m"]
-    rho = s["spearman_best_length_x_ratio"]
+    def spread(key: str) -> str:
+        q = s[f"{key}_spread"]
+        return f"sd {_f(q['std'])}, 10th-90th percentile {_f(q['p10'])}-{_f(q['p90'])}"
+
+    follow = s["spearman_intention"]
     lines = [
-        f"{s['walks']} walks ({s['walks_per_length']} per length), {s['swings']} swings with X_CoM/X_SP; "
-        f"stick goals clamped: {s['stick_clamps'] or 'none'}",
-        f"X_CoM/X_SP at the swing's start: sd {_f(x['std'])}, 10th-90th percentile {_f(x['p10'])}-{_f(x['p90'])}; "
-        f"intention sd {_f(it['std'])} m; Spearman(intention, X_CoM/X_SP) {_f(s['spearman_intention_x_ratio'])}",
-        f"best step per bin against X_CoM/X_SP: Spearman {_f(rho)}; fixed lengths fall-free and within {NEAR_N:.0f} N "
-        f"of the best in every bin: {', '.join(f'{v:.2f}' for v in s['lengths_fit_for_every_bin']) or 'none'}",
+        f"{s['walks']} walks ({s['walks_per_length']} per length), {s['swings']} swings binned by {BIN_BY[s['bin_by']]}; "
+        f"stick goals clamped: {s['clamped_stick_goals'] or 'none'}",
+        f"intention: {spread('intention')} m; X_CoM/X_SP at the swing's start, planted: {spread('planted')} "
+        f"(Spearman with the intention {_f(follow['planted'])}); stance: {spread('stance')} ({_f(follow['stance'])})",
+        f"best step per bin: Spearman {_f(s['spearman_best_length'])} with the bins; fixed lengths fall-free and within "
+        f"{NEAR_N:.0f} N of the best in every bin: {', '.join(f'{v:.2f}' for v in s['lengths_fit_for_every_bin']) or 'none'}",
         "",
-        "| length m | " + " | ".join(f"X {e['x_ratio_from']:.2f}-{e['x_ratio_to']:.2f}: falls/steps, force N"
-                                     for e in s["best"]) + " |",
+        "| length m | " + " | ".join(f"{e['from']:.2f}-{e['to']:.2f}: falls/steps, force N" for e in s["best"]) + " |",
         "|---|" + "---|" * s["bins"],
     ]
     grid = {(c["length_m"], c["bin"]): c for c in s["cells"]}

@@ -110,13 +110,13 @@ def write_falls(results: list[dict[str, Any]], out: Path) -> dict[str, Any]:
     return s
 
 
-def write_intention(results: list[dict[str, Any]], out: Path, bins: int) -> dict[str, Any]:
+def write_intention(results: list[dict[str, Any]], out: Path, bins: int, by: str = "planted") -> dict[str, Any]:
     """The fixed lengths crossed with X_CoM/X_SP (:mod:`tools.experiment.intention`) under ``out``:
     intention.csv, intention.json, intention.png and intention.md; returns the summary."""
     from tools.experiment import intention
 
     out.mkdir(parents=True, exist_ok=True)
-    s = intention.analyse(results, bins)
+    s = intention.analyse(results, bins, by)
     _write(out / "intention.csv", _csv(intention.csv_rows(results)))
     intention.figure(results, s, out / "intention.png", _canvas, _save)
     _write(out / "intention.json", json.dumps(s, indent=2) + "\n")

@@ -121,6 +121,8 @@ def run_walk(cfg: Config, job: WalkJob) -> dict[str, Any]:
         "step_arm_torque_nm": [round(t, 4) for t in torques],
         # every step whose swing started, the last one too when it did not land: (length, X_CoM/X_SP at its start, landed)
         "swings": [[round(s.length_m, 5), round(s.x_ratio, 5), s.landed] for s in swings],
+        # X_CoM/X_SP at each of those swings' start over the support that carries it (stance ankle to the front-most tip)
+        "swing_x_ratio_stance": [_round(s.x_ratio_stance, 5) for s in swings],
         # the simulated patient's intended stick placement ahead of its CoM before each of those swings
         "swing_intention_m": _swing_intentions(outcome.intentions_m, len(swings)),
         "stick_clamps": outcome.stick_clamps,
