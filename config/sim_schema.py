@@ -180,7 +180,9 @@ class IntentionConfig:
     regime: Literal["steady", "noisy", "drifting", "obstacle"] = field_spec(
         doc="steady: always ahead_m; noisy: Gaussian white noise (the paper's); drifting: a pace that wanders slowly; "
             "obstacle: now and then a deliberately short or long placement.")
-    ahead_m: float = field_spec(doc="Mean intended stick placement ahead of the CoM.", unit="m", min=0.1, max=0.8)
+    reference: Literal["com", "front_ankle"] = field_spec(
+        doc="What the placement is ahead of: the CoM when the stick lifts, or the front foot's ankle (the stance foot of the next swing).")
+    ahead_m: float = field_spec(doc="Mean intended stick placement ahead of the reference.", unit="m", min=0.1, max=0.8)
     spread_m: float = field_spec(doc="noisy and drifting: standard deviation of the intention about ahead_m.", unit="m", min=0.0, max=0.3)
     drift_steps: float = field_spec(doc="drifting: correlation length of the wander.", unit="steps", min=1.0, max=1000.0)
     obstacle_probability: float = field_spec(doc="obstacle: chance of a short or long placement at a step.", min=0.0, max=1.0)

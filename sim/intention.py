@@ -1,10 +1,10 @@
-"""The patient's intention: how far ahead of its body it means to place the sticks, step by step.
+"""The patient's intention: how far ahead it means to place the sticks, step by step.
 
 The paper's simulation sets "the pilot's intention (goal places of sticks) ... as a noisy
 parameter with Gaussian white noise, which makes each step of the pilot not fixed", and on the
 real AIDER "the pilot put the sticks randomly in each step". Before the stick moves of each step
-the patient picks one intended placement, ``ahead_m`` ahead of its centre of mass plus the
-regime's variation (``sim.patient.intention``):
+the patient picks one intended placement, ``ahead_m`` ahead of its centre of mass (or of its front
+ankle, ``reference``) plus the regime's variation (``sim.patient.intention``):
 
 * ``steady``: always ``ahead_m``;
 * ``noisy`` (default): Gaussian white noise of standard deviation ``spread_m`` (the paper's);

@@ -5,9 +5,9 @@ The patient is a controller inside the plant, running at a human rate (``patient
 1. before a stick leaves the ground it shifts the CoM into the support that remains (the feet, and
    in the alternating gait the other stick) and waits until it is there;
 2. it places the stick(s) ahead of its own body: before each step's stick moves it picks how far
-   ahead of the CoM (its intention, :mod:`sim.intention`; a reach relative to the trunk, not to the
-   exoskeleton's feet), and each stick lands there plus its own placement error, within the
-   reach of its arm (a goal beyond it is clamped, and counted in the step's record);
+   ahead of its CoM (or of its front ankle) to put them (its intention, :mod:`sim.intention`), and
+   each stick lands there plus its own placement error, within the reach of its arm (a goal beyond
+   it is clamped, and counted in the step's record);
 3. it leans: the CoM target moves toward the sticks at a comfortable speed, until it is a
    comfortable distance behind them, or the stick load reaches what the patient's arms will bear.
 
@@ -76,8 +76,8 @@ class StepRecord:
     samples: int = 0
     min_margin_m: float = math.inf
     landed: bool = False
-    intention_m: float = math.nan  # the patient's intended stick placement ahead of the CoM (sim.intention)
-    placed_ahead_m: float = math.nan  # where its sticks landed: their mean goal ahead of the CoM at the lift
+    intention_m: float = math.nan  # the patient's intended stick placement ahead of its reference (sim.intention)
+    placed_ahead_m: float = math.nan  # where its sticks went: their mean goal ahead of the intention's reference
     clamped: int = 0  # stick goals moved to where the arm reaches or ahead of where the stick stood
 
     def add(self, stick_force_n: float, arm_torque_nm: float, margin_m: float) -> None:
@@ -192,13 +192,18 @@ class Walker:
         self._set_phase(Phase.SHIFT)
 
     def _stick_goal(self, side: str, start: np.ndarray) -> np.ndarray:
-        """Where a lifted stick goes: the intention plus its placement error ahead of the CoM, at
+        """Where a lifted stick goes: the intention plus its placement error ahead of the CoM (or the
+        front ankle, ``intention.reference``), at
         least ``stick_min_advance_m`` ahead of where it stood and no farther than the straight arm
         and stick reach less ``stick_reach_margin_m`` (either clamp counted in ``clamps`` and the
-        step's record)."""
+        step's record, which also keeps the mean goal ahead of the reference)."""
         pc = self.cfg.patient
         sign = 1.0 if side == "l" else -1.0
-        x = float(self.kin.com[0]) + self.intended_m + float(self.rng.normal(0.0, pc.stick_noise_m))
+        if pc.intention.reference == "com":
+            origin_x = float(self.kin.com[0])
+        else:
+            origin_x = max(float(self.ankle_xy(f)[0]) for f in SIDES)
+        x = origin_x + self.intended_m + float(self.rng.normal(0.0, pc.stick_noise_m))
         y, z = sign * pc.stick_half_width_m, self.cfg.model.sticks.tip_radius_m
         origin, rot = self.world.link_frame("trunk")
         shoulder = origin + rot @ np.array([0.0, sign * self.body.shoulder_half_width_m, self.body.shoulder_above_hip_m])
@@ -207,10 +212,13 @@ class Walker:
         far = shoulder[0] + math.sqrt(max(across, 0.0))
         near = float(start[0]) + pc.stick_min_advance_m
         reason = "reach" if x > far else "advance" if x < near else None
+        record = self._next_step
         if reason is not None:
             x = far if reason == "reach" else near
             self.clamps[reason] += 1
-            self._next_step.clamped += 1
+            record.clamped += 1
+        ahead = x - origin_x  # the step's sticks: their mean
+        record.placed_ahead_m = ahead if math.isnan(record.placed_ahead_m) else (record.placed_ahead_m + ahead) / 2
         return np.array([x, y, 0.0])
 
     def _lifting(self) -> list[str]:
@@ -287,10 +295,7 @@ class Walker:
                     del self.unloading[side]
                     self.planted[side] = False
                     start = self.tip_point(side)
-                    goal = self._stick_goal(side, start)
-                    self.tip_path[side] = (start, goal, 0.0)
-                    record, ahead = self._next_step, float(goal[0] - com[0])  # the step's sticks: their mean
-                    record.placed_ahead_m = ahead if math.isnan(record.placed_ahead_m) else (record.placed_ahead_m + ahead) / 2
+                    self.tip_path[side] = (start, self._stick_goal(side, start), 0.0)
             for side, (start, goal, tau) in list(self.tip_path.items()):
                 tau += dt / s.stick_move_time_s
                 if tau >= 1.0 and reading.stick_force_n[SIDES.index(side)] > s.stick_planted_n:

@@ -99,14 +99,19 @@ def _with_intention(**changes):
     return dataclasses.replace(SIM, patient=dataclasses.replace(patient, intention=dataclasses.replace(patient.intention, **changes)))
 
 
-def test_each_step_records_the_patients_intention_and_where_its_sticks_went():
-    cfg = _with_intention(regime="noisy", spread_m=0.05)
+@pytest.mark.parametrize("reference, ahead_m", [("com", 0.35), ("front_ankle", 0.33)])
+def test_each_step_records_the_patients_intention_and_where_its_sticks_went(reference, ahead_m):
+    cfg = _with_intention(regime="noisy", spread_m=0.05, reference=reference, ahead_m=ahead_m)
     result = walk(cfg, gait_settings(cfg, step_length_m=0.10), seed=2, max_steps=3, max_time_s=30.0)
     steps = result.steps
     assert len(steps) >= 2 and len({s.intention_m for s in steps}) == len(steps)  # drawn anew for each step
     for s in steps:
         if not s.clamped:  # the sticks land at the intention, give or take their own placement error
             assert s.placed_ahead_m == pytest.approx(s.intention_m, abs=4 * cfg.patient.stick_noise_m)
+
+
+
+def test_a_steady_patient_means_the_same_placement_every_step():
     steady = walk(SIM, gait_settings(SIM, step_length_m=0.10), seed=2, max_steps=2, max_time_s=20.0)
     assert {s.intention_m for s in steady.steps} == {SIM.patient.intention.ahead_m}
 

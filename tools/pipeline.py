@@ -55,7 +55,7 @@ class WalkOutcome:
     ticks: int = 0
     ratio_errors: list[float] = field(default_factory=list)  # |estimate - truth| per tick where both exist
     arm_torques_nm: list[float] = field(default_factory=list)  # ground truth: mean upper-body torque of each landed step
-    # ground truth: the patient's intended stick placement (m ahead of its CoM) per step, the one in the making last
+    # ground truth: the patient's intended stick placement (sim.patient.intention) per step, the one in the making last
     intentions_m: list[float] = field(default_factory=list)
     stick_clamps: dict[str, int] = field(default_factory=dict)  # stick goals the patient's arm reach or advance moved
     events: list[str] = field(default_factory=list)

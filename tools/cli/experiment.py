@@ -56,20 +56,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     cp.add_argument("--walks", type=positive_int, default=5, help="walks (seeds) per gait (default 5)")
     cp.set_defaults(func=run_compare)
 
+    def walks_and_span(sp: argparse.ArgumentParser, walks: int, walks_help: str, lo: float, hi: float, step: str) -> None:
+        sp.add_argument("--seed", type=int, default=0, help="seed of the walks (default 0)")
+        sp.add_argument("--walks", type=positive_int, default=walks, help=f"{walks_help} (default {walks})")
+        sp.add_argument("--min", type=float, default=lo, dest="min_m", help=f"shortest {step}, m (default {lo})")
+        sp.add_argument("--max", type=float, default=hi, dest="max_m", help=f"longest {step}, m (default {hi})")
+
     fp = xsub.add_parser("falls", help="walks with random step lengths: what makes the model fall, and whether X_CoM/X_SP tells")
     common(fp)
-    fp.add_argument("--seed", type=int, default=0, help="seed of the walks (default 0)")
-    fp.add_argument("--walks", type=positive_int, default=30, help="walks (default 30)")
-    fp.add_argument("--min", type=float, default=0.09, dest="min_m", help="shortest step drawn, m (default 0.09)")
-    fp.add_argument("--max", type=float, default=0.19, dest="max_m", help="longest step drawn, m (default 0.19)")
+    walks_and_span(fp, 30, "walks", 0.09, 0.19, "step drawn")
     fp.set_defaults(func=run_falls)
 
     ip = xsub.add_parser("intention", help="fixed step lengths crossed with X_CoM/X_SP bins: which step fits which intention")
     common(ip)
-    ip.add_argument("--seed", type=int, default=0, help="seed of the walks (default 0)")
-    ip.add_argument("--walks", type=positive_int, default=10, help="walks (patients) per step length (default 10)")
-    ip.add_argument("--min", type=float, default=0.06, dest="min_m", help="shortest step, m (default 0.06)")
-    ip.add_argument("--max", type=float, default=0.22, dest="max_m", help="longest step, m (default 0.22)")
+    walks_and_span(ip, 10, "walks (patients) per step length", 0.06, 0.22, "step")
     ip.add_argument("--every", type=float, default=0.02, dest="every_m", help="step length spacing, m (default 0.02)")
     ip.add_argument("--bins", type=positive_int, default=4, help="X_CoM/X_SP bins of equal counts (default 4)")
     ip.add_argument("--regime", choices=("steady", "noisy", "drifting", "obstacle"), default="noisy",

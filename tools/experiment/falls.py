@@ -60,7 +60,7 @@ class Swing:
     ended_after: bool  # the walk ended in the double support after this step landed
     end: str  # how the walk ended (for the step it ended in or after)
     stick_force_n: float  # the landed step's mean stick force (nan: it did not land)
-    intention_m: float  # the patient's intended stick placement ahead of its CoM before this swing (nan: unknown)
+    intention_m: float  # the patient's intended stick placement before this swing (nan: unknown)
     x_ratio_stance: float  # X_CoM/X_SP at the swing's start over the stance ankle and the tips (nan: unknown)
 
 

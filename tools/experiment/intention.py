@@ -167,8 +167,8 @@ def figure(results: list[dict[str, Any]], s: dict[str, Any], path, canvas, save)
         pts = [(r.intention_m, _value(r, key), r.ended or r.ended_after) for r in rows if math.isfinite(_value(r, key))]
         c.scatter([p[0] for p in pts if not p[2]], [p[1] for p in pts if not p[2]], s=6, c=colour, alpha=0.4, label=BIN_BY[key])
         c.scatter([p[0] for p in pts if p[2]], [p[1] for p in pts if p[2]], s=25, c=colour, marker="x")
-    c.set(xlabel="intended stick placement ahead of the CoM (m)", ylabel="X_CoM/X_SP at the swing's start",
-          title="(c) does the lean follow the intention? (x: the walk ended in or after it)")
+    c.set(xlabel="intended stick placement (m)", ylabel="X_CoM/X_SP at the swing's start",
+          title="(c) does the CoM follow the intention? (x: a fall)")
     c.legend(loc="best", fontsize=8)
     save(fig, path)
 

@@ -123,7 +123,7 @@ def run_walk(cfg: Config, job: WalkJob) -> dict[str, Any]:
         "swings": [[round(s.length_m, 5), round(s.x_ratio, 5), s.landed] for s in swings],
         # X_CoM/X_SP at each of those swings' start over the support that carries it (stance ankle to the front-most tip)
         "swing_x_ratio_stance": [_round(s.x_ratio_stance, 5) for s in swings],
-        # the simulated patient's intended stick placement ahead of its CoM before each of those swings
+        # the simulated patient's intended stick placement (sim.patient.intention) before each of those swings
         "swing_intention_m": _swing_intentions(outcome.intentions_m, len(swings)),
         "stick_clamps": outcome.stick_clamps,
         "mean_stick_force_n": _round(outcome.mean_stick_force_n),  # the walk's own means (tools.pipeline.WalkOutcome)
