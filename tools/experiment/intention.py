@@ -145,8 +145,8 @@ def figure(results: list[dict[str, Any]], s: dict[str, Any], path, canvas, save)
     lengths_m, bins = s["lengths_m"], s["bins"]
     grid = {(e["length_m"], e["bin"]): e for e in s["cells"]}
     labels = [f"{e['from']:.2f}-{e['to']:.2f}" for e in s["best"]]
-    for axis, key, title, cmap, scale in ((a, "falls_per_step", "(a) falls per step (%)", "Reds", 100.0),
-                                          (b, "stick_force_n", "(b) mean stick force (N)", "viridis", 1.0)):
+    for axis, key, title, cmap, scale in ((a, "falls_per_step", "(a) falls per step (%); o: best step", "Reds", 100.0),
+                                          (b, "stick_force_n", "(b) mean stick force (N); o: best step", "viridis", 1.0)):
         m = np.array([[np.nan if grid[(length, j)][key] is None else scale * grid[(length, j)][key] for j in range(bins)]
                       for length in lengths_m])
         image = axis.imshow(m, origin="lower", aspect="auto", cmap=cmap)
@@ -156,9 +156,8 @@ def figure(results: list[dict[str, Any]], s: dict[str, Any], path, canvas, save)
                 if np.isfinite(m[i, j]):
                     axis.text(j, i, f"{m[i, j]:.0f}", ha="center", va="center", fontsize=7, color="w" if key == "stick_force_n" else "k")
         marks = [(e["bin"], lengths_m.index(e["best_length_m"])) for e in s["best"] if e["best_length_m"] is not None]
-        if marks:
-            axis.plot(*zip(*marks), "o", mfc="none", mec="tab:cyan", mew=2, ms=14, label="best step (fall-free, least force)")
-            axis.legend(loc="upper left", fontsize=7)
+        if marks:  # the best step of a bin: fall-free, least force
+            axis.plot(*zip(*marks), "o", mfc="none", mec="tab:cyan", mew=2, ms=14)
         axis.set_xticks(range(bins), labels, fontsize=8)
         axis.set_yticks(range(len(lengths_m)), [f"{v:.2f}" for v in lengths_m])
         axis.set(xlabel=f"{BIN_BY[s['bin_by']]} at the swing's start (bin)", ylabel="fixed step length (m)", title=title)
