@@ -4,8 +4,8 @@ The paper's compensation ``g = g_init + alpha (Xhat_CoM - X_CoM/X_SP)`` is worth
 the step that fits depends on X_CoM/X_SP, which the patient's intention (where it places the
 sticks, and how far it leans toward them) moves from step to step. This experiment asks the
 model: for each fixed step length, the same patients (walk seeds) with an intention that varies
-(``sim.patient.intention``); every swing is put in a bin of X_CoM/X_SP at its start (bins of
-equal counts over all swings), and per cell (length, bin) it gives the falls per step (the walk
+(``sim.patient.intention``); every swing is put in a bin of X_CoM/X_SP at its start, or of the
+intention itself (:data:`BIN_BY`; bins of equal counts over all swings), and per cell (length, bin) it gives the falls per step (the walk
 ended in the swing or in the double support after it) and the landed steps' mean stick force.
 The best step of a bin is the fall-free length with the lowest force. What the paper's Figs. 4
 and 5 say, the model should show: the best step rises with X_CoM/X_SP, and no one fixed length
