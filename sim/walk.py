@@ -135,7 +135,6 @@ class Walker:
         self.sensors = Sensors(world, cfg.sensors, rng)
         # its own stream (spawned, not drawn from rng): the sensors' noise does not move the intentions
         self.intention = Intention(cfg.patient.intention, rng.spawn(1)[0])
-        self.intended_m = math.nan  # this step's
         self.clamps = {"reach": 0, "advance": 0}  # stick goals clamped, by reason, over the walk
         self.body = world.body
         self.gains = WrenchGains()
@@ -187,8 +186,7 @@ class Walker:
 
     def _start_stick_moves(self) -> None:
         self.stick_queue = list(SIDES) if self.together else sorted(SIDES, key=lambda s: self.tip_point(s)[0])
-        self.intended_m = self.intention.next_m()
-        self._next_step.intention_m = self.intended_m
+        self._next_step.intention_m = self.intention.next_m()
         self._set_phase(Phase.SHIFT)
 
     def _stick_goal(self, side: str, start: np.ndarray) -> np.ndarray:
@@ -203,7 +201,7 @@ class Walker:
             origin_x = float(self.kin.com[0])
         else:
             origin_x = max(float(self.ankle_xy(f)[0]) for f in SIDES)
-        x = origin_x + self.intended_m + float(self.rng.normal(0.0, pc.stick_noise_m))
+        x = origin_x + self._next_step.intention_m + float(self.rng.normal(0.0, pc.stick_noise_m))
         y, z = sign * pc.stick_half_width_m, self.cfg.model.sticks.tip_radius_m
         origin, rot = self.world.link_frame("trunk")
         shoulder = origin + rot @ np.array([0.0, sign * self.body.shoulder_half_width_m, self.body.shoulder_above_hip_m])

@@ -123,7 +123,7 @@ def test_a_stick_goal_beyond_the_arms_reach_is_clamped_and_counted():
         world.place(initial_pose(SIM))  # standing with the sticks where they usually are
         walker = Walker(world, cfg, gait_settings(cfg), np.random.default_rng(0))
         walker.start()
-        walker.intended_m = walker.intention.next_m()
+        walker._next_step.intention_m = walker.intention.next_m()
         start = walker.tip_point("l")
         goal = walker._stick_goal("l", start)
         shoulder_reach = sum(walker.body.arm_reach_m)
@@ -133,6 +133,6 @@ def test_a_stick_goal_beyond_the_arms_reach_is_clamped_and_counted():
         shoulder = origin + rot @ np.array([0.0, walker.body.shoulder_half_width_m, walker.body.shoulder_above_hip_m])
         tip = goal + np.array([0.0, 0.0, cfg.model.sticks.tip_radius_m])
         assert np.linalg.norm(tip - shoulder) == pytest.approx(shoulder_reach - cfg.patient.stick_reach_margin_m, abs=1e-6)
-        walker.intended_m = -0.5  # behind where the stick stands: it still moves on
+        walker._next_step.intention_m = -0.5  # behind where the stick stands: it still moves on
         assert walker._stick_goal("l", start)[0] == pytest.approx(start[0] + cfg.patient.stick_min_advance_m)
         assert walker.clamps == {"reach": 1, "advance": 1}

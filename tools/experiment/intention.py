@@ -69,7 +69,8 @@ def _value(s: Swing, by: str) -> float:
 def analyse(results: list[dict[str, Any]], bins: int, by: str = "planted") -> dict[str, Any]:
     """The grid of falls and forces by (fixed length, bin of ``by``), the best step per bin and
     the checks of the module doc."""
-    rows = [s for s in swings(results) if math.isfinite(_value(s, by))]
+    every = swings(results)
+    rows = [s for s in every if math.isfinite(_value(s, by))]
     v = np.array([_value(s, by) for s in rows])
     edges = np.percentile(v, np.linspace(0, 100, bins + 1)) if len(v) else np.zeros(bins + 1)
     lengths_m = sorted({r["job"]["fixed_m"] for r in results})
@@ -105,7 +106,6 @@ def analyse(results: list[dict[str, Any]], bins: int, by: str = "planted") -> di
                    and own[e["bin"]]["stick_force_n"] <= e["best_stick_force_n"] + NEAR_N) for e in best)
         if fall_free and near:
             sufficient.append(length)
-    every = swings(results)
     clamps: dict[str, int] = {}
     for r in results:
         for reason, n in (r.get("stick_clamps") or {}).items():
