@@ -195,6 +195,7 @@ class GaitConfig:
     foot_free_n: float = field_spec(doc="The swing foot is free once it carries less than this ...", unit="N", min=0.0, max=800.0)
     foot_free_s: float = field_spec(doc="... for this long.", unit="s", min=0.0, max=2.0)
     lean_behind_tips_m: float = field_spec(doc="The patient's lean goal: the CoM this far behind the mean stick tip.", unit="m", min=0.0, max=0.8)
+    lean_over_stance_m: float = field_spec(doc="... and at least this far past the stance ankle (the body over the foot that will carry the swing).", unit="m", min=0.0, max=0.2)
     comfort_stick_n: float = field_spec(doc="The lean pauses while a stick carries this.", unit="N", min=10.0, max=1000.0)
     swing_stick_n: float = field_spec(doc="A step is ready with both sticks carrying this.", unit="N", min=1.0, max=500.0)
     tips_ahead_m: float = field_spec(doc="... both tips this far ahead of the front ankle ...", unit="m", min=0.0, max=0.6)

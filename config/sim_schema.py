@@ -221,7 +221,8 @@ class GaitConfig:
     unload_time_s: float = field_spec(doc="Time the patient takes to unload a stick before lifting it.", unit="s", min=0.0, max=3.0)
     lean_speed_m_s: float = field_spec(doc="Speed of the patient's lean toward the sticks.", unit="m/s", min=0.01, max=1.0)
     lean_behind_sticks_m: float = field_spec(doc="The lean stops this far behind the stick tips.", unit="m", min=0.0, max=1.0)
-    lean_past_stance_m: float = field_spec(doc="The lean goes at least this far past the stance ankle before a swing.", unit="m", min=0.0, max=0.3)
+    lean_past_stance_m: float = field_spec(doc="The lean goes at least this far past the stance ankle before a swing ...", unit="m", min=0.0, max=0.3)
+    lean_most_past_stance_m: float = field_spec(doc="... and at most this far (the patient's comfort, however far the sticks stand).", unit="m", min=0.0, max=0.5)
     lean_tolerance_m: float = field_spec(doc="A lean this close to its lead counts as reached.", unit="m", min=0.0, max=0.05)
     stalled_lean_s: float = field_spec(doc="A lean still for this long ...", unit="s", min=0.1, max=1e9)
     stalled_lean_lead_m: float = field_spec(doc="... with the CoM this far past the stance ankle starts the swing.", unit="m", min=0.0, max=0.3)
@@ -246,6 +247,10 @@ class GaitConfig:
     hip_speed_m_s: float = field_spec(doc="Fastest the stance legs carry the hip toward the patient's CoM goal.", unit="m/s", min=0.01, max=2.0)
     hip_correction_m: float = field_spec(doc="Largest hip move the stance legs take in one tick.", unit="m", min=0.001, max=0.1)
     leg_ff_gain: float = field_spec(doc="Share of the balance distribution's leg torques fed forward.", min=0.0, max=2.0)
+
+    def validate(self) -> None:
+        if self.lean_most_past_stance_m < self.lean_past_stance_m:
+            fail("lean_most_past_stance_m", f"must not be below lean_past_stance_m {self.lean_past_stance_m}")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -254,7 +254,8 @@ class GaitPlanner:
             self._stance(LEGS, est, m, self._shift(est))
             self._solve(m)
             return DoubleSupport(False, "shift", math.nan, self.sticks.loaded)
-        goal = (tip_l + tip_r) / 2 - p.lean_behind_tips_m
+        stance_x = float(est.ankles[1 - swing_leg][0])
+        goal = max((tip_l + tip_r) / 2 - p.lean_behind_tips_m, stance_x + p.lean_over_stance_m)
         comfortable = max(m.stick_force_n.tolist()) < p.comfort_stick_n
         # The lean goes on until the swing foot is free: a trailing foot at its ankle's stop props
         # the body on its toe, farther ahead the shorter the step, so a short step needs a lean

@@ -219,6 +219,16 @@ class Walker:
         record.placed_ahead_m = ahead if math.isnan(record.placed_ahead_m) else (record.placed_ahead_m + ahead) / 2
         return np.array([x, y, 0.0])
 
+    def _lean_goal_x(self) -> float:
+        """Where the patient leans to once both sticks are placed: ``lean_behind_sticks`` behind them
+        (the intention sets how far), and past the stance ankle by at least ``lean_past_stance`` (a
+        swing that starts with the CoM over or behind the stance heel tips the body backward, as
+        sticks can push but not pull) and at most ``lean_most_past_stance`` (its comfort)."""
+        s = self.s
+        tips_x = float(np.mean([self.tip_point(side)[0] for side in SIDES]))
+        stance_x = float(self.ankle_xy(OTHER[self.next_swing])[0])
+        return clamp(tips_x - s.lean_behind_sticks_m, stance_x + s.lean_past_stance_m, stance_x + s.lean_most_past_stance_m)
+
     def _lifting(self) -> list[str]:
         """The stick(s) the patient lifts next."""
         return self.stick_queue[:2] if self.together else self.stick_queue[:1]
@@ -306,15 +316,8 @@ class Walker:
                 if self.stick_queue:
                     self._set_phase(Phase.SHIFT)
                 else:
-                    tips_x = float(np.mean([self.tip_point(side)[0] for side in SIDES]))
-                    self.lean_goal_x = tips_x - s.lean_behind_sticks_m
+                    self.lean_goal_x = self._lean_goal_x()
                     self.lean_rest_s = 0.0
-                    if self.scripted_exo:
-                        # The scripted gait's patient also leans past the stance foot: a swing that
-                        # starts with the CoM over (or behind) the stance heel tips the body
-                        # backward, as sticks can push but not pull.
-                        stance_x = self.ankle_xy(OTHER[self.next_swing])[0]
-                        self.lean_goal_x = max(self.lean_goal_x, stance_x + s.lean_past_stance_m)
                     self._set_phase(Phase.LEAN)
             return
         if self.phase in (Phase.LEAN, Phase.SWING):

@@ -278,6 +278,16 @@ def test_with_both_sticks_moved_double_support_leans_toward_the_patients_goal():
     assert mid_lead(g, ahead) > 0.0  # the CoM behind the goal: the hips go forward
 
 
+def test_the_lean_goes_past_the_stance_ankle_however_short_the_placement():
+    # sticks can push but not pull: a swing with the CoM over (or behind) the stance ankle tips back
+    near = replace(P, lean_behind_tips_m=0.40)  # the patient's goal 0.04 m: short of the right ankle's floor
+    est = estimate(ankles_x=(-0.06, 0.06), com_x=0.0, tips_x=(0.35, 0.35))
+    g = planner(est, measurements(est), near)
+    ahead = sticks_moved(g)
+    assert g.double_support(ahead, measurements(ahead), RIGHT).lean_goal_x == pytest.approx(0.44 - 0.40)
+    assert g.double_support(ahead, measurements(ahead), LEFT).lean_goal_x == pytest.approx(0.06 + P.lean_over_stance_m)
+
+
 def ticks_to_ready(g: GaitPlanner, est: Estimate, limit: int = 500) -> int:
     """Lean ticks with the CoM held at ``est`` until the step is ready."""
     for n in range(1, limit + 1):

@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from config import default_config_path, load_config
+from config import default_config_path, load_config, with_overrides
 from sim.sweep import episode_summary
-from sim.walk import Walker, gait_settings, initial_pose, walk
+from sim.walk import OTHER, Walker, gait_settings, initial_pose, walk
 from sim.world import World
 from tools.cli import main
 
@@ -40,13 +40,15 @@ def test_a_short_step_walks_in_the_plane_without_falling():
 
 
 def test_a_lean_that_stalls_past_the_stance_foot_starts_the_step():
-    # At 0.16 m the trailing leg goes straight before the lean reaches its goal (docs/SIM.md item 12).
+    # With the ankles' dorsiflexion stop at 0.40 rad, at 0.16 m the trailing leg goes straight before
+    # the lean reaches its goal (docs/SIM.md item 12; at the default 0.50 rad the lean gets there).
     # 0.16 m is at the edge of what the patient can walk: over more steps a walk may fall (seed 5
     # falls in its fifth step on an AVX-512 machine and walked six on an AVX2 one: the physics'
     # floating point differs by CPU), so the test asks for the steps the rule makes possible.
-    stuck = walk(SIM, gait_settings(SIM, step_length_m=0.16, stalled_lean_s=1e9), seed=5, max_steps=4, max_time_s=25.0)
+    stiff = with_overrides(load_config(default_config_path()), {"sim.mode": "sagittal", "sim.model.joints.ankle.upper_rad": 0.40}).sim
+    stuck = walk(stiff, gait_settings(stiff, step_length_m=0.16, stalled_lean_s=1e9), seed=5, max_steps=4, max_time_s=25.0)
     assert not stuck.fell and stuck.steps_completed < 4  # waits for good
-    result = walk(SIM, gait_settings(SIM, step_length_m=0.16), seed=5, max_steps=4, max_time_s=30.0)
+    result = walk(stiff, gait_settings(stiff, step_length_m=0.16), seed=5, max_steps=4, max_time_s=30.0)
     assert not result.fell and result.steps_completed == 4
 
 
@@ -109,6 +111,19 @@ def test_each_step_records_the_patients_intention_and_where_its_sticks_went(refe
         if not s.clamped:  # the sticks land at the intention, give or take their own placement error
             assert s.placed_ahead_m == pytest.approx(s.intention_m, abs=4 * cfg.patient.stick_noise_m)
 
+
+
+@pytest.mark.parametrize("tips_ahead_m, lead_m", [(0.25, "least"), (0.36, "goal"), (0.60, "most")])
+def test_the_lean_goes_past_the_stance_ankle_at_least_and_at_most_so_far(tips_ahead_m, lead_m):
+    with World(SIM) as world:
+        world.place(initial_pose(SIM))
+        walker = Walker(world, SIM, gait_settings(SIM), np.random.default_rng(0))
+        walker.start()
+        stance_x = float(walker.ankle_xy(OTHER[walker.next_swing])[0])
+        walker.tip_point = lambda side: np.array([stance_x + tips_ahead_m, 0.0, 0.0])
+        g = SIM.gait
+        want = {"least": g.lean_past_stance_m, "most": g.lean_most_past_stance_m, "goal": tips_ahead_m - g.lean_behind_sticks_m}[lead_m]
+        assert walker._lean_goal_x() - stance_x == pytest.approx(want)
 
 
 def test_a_steady_patient_means_the_same_placement_every_step():
