@@ -266,19 +266,20 @@ def test_intention_analysis_finds_the_best_step_per_bin_and_whether_one_length_w
     assert lengths(0.06, 0.22, 0.02) == [0.06, 0.08, 0.1, 0.12, 0.14, 0.16, 0.18, 0.2, 0.22]
     # after a short placement (X low) only the short step stands; after a long one the long step costs least
     table = {0.08: (60.0, 70.0, 80.0), 0.12: (None, 60.0, 70.0), 0.16: (None, None, 60.0)}
-    results = [_cell(i, length, x, f) for i, (length, forces) in enumerate(table.items())
-               for x, f in zip((0.35, 0.45, 0.55), forces)]
+    # three walks per cell: 12 swings, enough for a cell's figures (MIN_SWINGS)
+    results = [_cell(10 * i + rep, length, x, f) for i, (length, forces) in enumerate(table.items())
+               for x, f in zip((0.35, 0.45, 0.55), forces) for rep in range(3)]
     s = analyse(results, bins=3)
-    assert s["swings"] == 36 and s["lengths_m"] == [0.08, 0.12, 0.16]
+    assert s["swings"] == 108 and s["lengths_m"] == [0.08, 0.12, 0.16]
     assert [e["best_length_m"] for e in s["best"]] == [0.08, 0.12, 0.16]
     assert [e["best_stick_force_n"] for e in s["best"]] == [60.0, 60.0, 60.0]
     assert s["spearman_best_length"] == pytest.approx(1.0)
     assert s["lengths_fit_for_every_bin"] == []  # 0.08 never falls but costs 20 N more where X is high
     cell = next(c for c in s["cells"] if c["length_m"] == 0.12 and c["bin"] == 0)
-    assert (cell["swings"], cell["falls"], cell["falls_per_step"]) == (4, 1, 0.25)
+    assert (cell["swings"], cell["falls"], cell["falls_per_step"]) == (12, 3, 0.25)
     assert "0.08 m (60.0 N)" in report_lines(s)[-1]
     # a patient whose every step fits one length: that length would do
-    same = analyse([_cell(i, 0.12, x, 55.0) for i, x in enumerate((0.35, 0.45, 0.55))], bins=3)
+    same = analyse([_cell(i, 0.12, x, 55.0) for i, x in enumerate((0.35, 0.45, 0.55) * 3)], bins=3)
     assert same["lengths_fit_for_every_bin"] == [0.12] and same["spearman_best_length"] is None
 
 

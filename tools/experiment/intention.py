@@ -25,8 +25,8 @@ from tools.experiment.falls import Swing, swings
 from tools.experiment.learn import walk_seed
 from tools.experiment.runner import WalkJob
 
-#: a cell needs this many swings for its best-step and force figures
-MIN_SWINGS = 3
+#: a cell needs this many swings for its best-step and force figures (three fall-free swings say little)
+MIN_SWINGS = 10
 #: "near the best force": within this of the bin's best
 NEAR_N = 3.0
 
