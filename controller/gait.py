@@ -18,11 +18,12 @@ sticks hold it. One gait cycle, per leg (docs/CONTROLLER.md):
    props the body on its toe, farther ahead the shorter the step, so a short step needs a lean
    farther onto the sticks. The patient lets the lean go at most ``lean_past_goal`` past its own
    goal, ``lean_behind_tips`` behind the mean stick tip (where it placed the sticks is its
-   intention). The step is ready when both sticks carry ``swing_stick_n``, stand ``tips_ahead``
+   intention) and at least ``lean_over_stance`` past the stance ankle (sticks cannot pull: a swing
+   with the CoM over or behind the stance ankle tips the body backward). The step is ready when both sticks carry ``swing_stick_n``, stand ``tips_ahead``
    ahead of the front ankle, and the lean is over: the swing foot free, the CoM at the patient's
    limit, or no farther forward by ``lean_stall_m`` for ``lean_stall_s`` (``lean_start_s`` until the
    lean has first moved that far: the body, still coming back from the stick moves, takes up to
-   half a second to follow). No check of where the CoM
+   half a second to follow). Beyond that floor, no check of where the CoM
    is against the stance foot: that is the step length's job (the CoM compensation of the paper's
    equation (8)); a step too long for the patient's lean falls.
 3. **Swing.** The swing ankle follows the DMP in the stance foot's frame, from where it is to
