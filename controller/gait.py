@@ -19,8 +19,9 @@ sticks hold it. One gait cycle, per leg (docs/CONTROLLER.md):
    farther onto the sticks. The patient lets the lean go at most ``lean_past_goal`` past its own
    goal, ``lean_behind_tips`` behind the mean stick tip (where it placed the sticks is its
    intention) and at least ``lean_over_stance`` past the stance ankle (sticks cannot pull: a swing
-   with the CoM over or behind the stance ankle tips the body backward). The step is ready when both sticks carry ``swing_stick_n``, stand ``tips_ahead``
-   ahead of the front ankle, and the lean is over: the swing foot free, the CoM at the patient's
+   with the CoM over or behind the stance ankle tips the body backward). The step is ready when
+   both sticks carry ``swing_stick_n``, stand ``tips_ahead`` ahead of the front ankle, and the
+   lean is over: the swing foot free, the CoM at the patient's
    limit, or no farther forward by ``lean_stall_m`` for ``lean_stall_s`` (``lean_start_s`` until the
    lean has first moved that far: the body, still coming back from the stick moves, takes up to
    half a second to follow). Beyond that floor, no check of where the CoM

@@ -8,7 +8,6 @@ back on the bus, decoded by an independent receiver.
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import can
 import numpy as np
