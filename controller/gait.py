@@ -21,11 +21,12 @@ sticks hold it. One gait cycle, per leg (docs/CONTROLLER.md):
    intention) and at least ``lean_over_stance`` past the stance ankle (sticks cannot pull: a swing
    with the CoM over or behind the stance ankle tips the body backward). The step is ready when
    both sticks carry ``swing_stick_n``, stand ``tips_ahead`` ahead of the front ankle, and the
-   lean is over: the swing foot free, the CoM at the patient's
-   limit, or no farther forward by ``lean_stall_m`` for ``lean_stall_s`` (``lean_start_s`` until the
-   lean has first moved that far: the body, still coming back from the stick moves, takes up to
-   half a second to follow). Beyond that floor, no check of where the CoM
-   is against the stance foot: that is the step length's job (the CoM compensation of the paper's
+   lean is over: the swing foot free, the CoM at the patient's limit, or no farther forward by
+   ``lean_stall_m`` for ``lean_stall_s`` (``lean_start_s`` until the lean has first moved that far:
+   the body, still coming back from the stick moves, takes up to half a second to follow) with
+   the CoM at least half of ``lean_over_stance`` past the stance ankle (a lean that stalls short of
+   that waits: a stalled walk, not a swing that tips backward). Beyond that, no check of where the
+   CoM is against the stance foot: that is the step length's job (the CoM compensation of the paper's
    equation (8)); a step too long for the patient's lean falls.
 3. **Swing.** The swing ankle follows the DMP in the stance foot's frame, from where it is to
    the step length ahead of the stance ankle and ``landing_depth`` below it. The stance leg holds
@@ -277,7 +278,8 @@ class GaitPlanner:
         else:
             self._lean_still_s += self.dt_s
         stalled = self._lean_still_s >= (p.lean_stall_s if self._lean_moved else p.lean_start_s)
-        over = free or com_x >= goal + p.lean_past_goal_m - p.lean_stall_m or stalled
+        # a lean that stalls short of the stance ankle is not over: a swing from there tips backward
+        over = free or com_x >= goal + p.lean_past_goal_m - p.lean_stall_m or (stalled and com_x >= stance_x + p.lean_over_stance_m / 2)
         ahead = tip_l > front + p.tips_ahead_m and tip_r > front + p.tips_ahead_m
         return DoubleSupport(over and ahead and self.sticks.loaded, "lean", goal, self.sticks.loaded)
 

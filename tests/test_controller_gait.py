@@ -288,10 +288,10 @@ def test_the_lean_goes_past_the_stance_ankle_however_short_the_placement():
     assert g.double_support(ahead, measurements(ahead), LEFT).lean_goal_x == pytest.approx(0.06 + P.lean_over_stance_m)
 
 
-def ticks_to_ready(g: GaitPlanner, est: Estimate, limit: int = 500) -> int:
+def ticks_to_ready(g: GaitPlanner, est: Estimate, limit: int = 500, swing_leg: int = RIGHT) -> int:
     """Lean ticks with the CoM held at ``est`` until the step is ready."""
     for n in range(1, limit + 1):
-        if g.double_support(est, measurements(est), RIGHT).ready:
+        if g.double_support(est, measurements(est), swing_leg).ready:
             return n
     raise AssertionError(f"the step was not ready after {limit} ticks")
 
@@ -318,6 +318,16 @@ def test_a_lean_that_moved_and_stopped_is_over_after_lean_stall_s():
     moved = estimate(ankles_x=(-0.06, 0.06), com_x=2 * STALL.lean_stall_m, tips_x=(0.42, 0.46))
     n = ticks_to_ready(g, moved)
     assert ticks_for(STALL.lean_stall_s) <= n <= ticks_for(STALL.lean_stall_s) + 1
+
+
+def test_a_lean_that_stalls_short_of_the_stance_ankle_is_not_over():
+    # the left foot swings over the right one at 0.06 m; the body stays at 0.0: a swing from there
+    # tips it backward, so the controller waits (a stalled walk) rather than start it
+    g, ahead = stalling_planner()
+    for _ in range(ticks_for(3 * STALL.lean_start_s)):
+        assert not g.double_support(ahead, measurements(ahead), LEFT).ready
+    past = estimate(ankles_x=(-0.06, 0.06), com_x=0.06 + P.lean_over_stance_m / 2, tips_x=(0.42, 0.46))
+    assert ticks_to_ready(g, past, swing_leg=LEFT) <= ticks_for(STALL.lean_stall_s) + 1  # past it: the stall ends the lean
 
 
 def test_a_lean_that_creeps_forward_is_not_over():
