@@ -257,7 +257,7 @@ class GaitPlanner:
             self._stance(LEGS, est, m, self._shift(est))
             self._solve(m)
             return DoubleSupport(False, "shift", math.nan, self.sticks.loaded)
-        stance_x = float(est.ankles[1 - swing_leg][0])
+        stance_x = (ankle_l, ankle_r)[1 - swing_leg]
         goal = max((tip_l + tip_r) / 2 - p.lean_behind_tips_m, stance_x + p.lean_over_stance_m)
         comfortable = max(m.stick_force_n.tolist()) < p.comfort_stick_n
         # The lean goes on until the swing foot is free: a trailing foot at its ankle's stop props
