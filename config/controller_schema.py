@@ -230,7 +230,7 @@ class GaitConfig:
 class CompensationConfig:
     """theta = (alpha, Xhat_CoM) of the step-length compensation when no learned patient file is loaded."""
 
-    alpha: float = field_spec(doc="alpha: step length per unit of X_CoM/X_SP.", unit="m", min=-100.0, max=100.0)
+    alpha: float = field_spec(doc="alpha: step length per unit of X_CoM/X_SP (over the stance ankle and both stick tips at the swing's start).", unit="m", min=-100.0, max=100.0)
     xhat_com: float = field_spec(doc="Xhat_CoM: the CoM ratio at which the step is g_init.", min=-1.0, max=2.0)
 
 

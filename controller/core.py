@@ -505,8 +505,9 @@ class ControllerCore:
             self.gait.stand_here(est, m)
             self._step = StepRecord(index=len(self.steps), leg="", start_tick=tick)
         if state in SWINGS and before == GaitState.DOUBLE_SUPPORT:
-            goal, theta = self.policy.goal(est.x_ratio_planted)
             leg = _leg_index(state)
+            x_ratio = self.estimator.stance_ratio(est, 1 - leg)
+            goal, theta = self.policy.goal(x_ratio)
             if self.steps and self.steps[-1].landed:
                 # the last step as the double support after it left it (a landing foot may still slide)
                 last = self.steps[-1]
@@ -515,11 +516,11 @@ class ControllerCore:
                 self.gait.placed(last.length_m, last.placed_m)
             aim = self.gait.start_swing(leg, est, goal.length_m)
             step = self._step
-            step.leg, step.swing_tick, step.x_ratio, step.theta = "lr"[leg], tick, float(est.x_ratio_planted), theta
-            step.x_ratio_stance = self.estimator.fore_aft_ratio(float(est.com[0]), [float(est.ankles[1 - leg][0]), *est.tips[:, 0].tolist()])
+            step.leg, step.swing_tick, step.x_ratio, step.theta = "lr"[leg], tick, x_ratio, theta
+            step.x_ratio_planted = float(est.x_ratio_planted)
             step.length_m, step.requested_m, step.clamped, step.aimed_m = goal.length_m, goal.requested_m, goal.clamped, aim
             self.steps.append(step)
-            events.append(f"step {step.index} ({step.leg}): {goal.length_m:.3f} m at X_CoM/X_SP {est.x_ratio_planted:.2f}"
+            events.append(f"step {step.index} ({step.leg}): {goal.length_m:.3f} m at X_CoM/X_SP {x_ratio:.2f}"
                           + (f" (clamped: {goal.reason})" if goal.clamped else ""))
         return finished
 

@@ -16,9 +16,12 @@ trunk's heading (its yaw removed), so the ratio needs no global position. Per ti
   pivot, widened by half the sole across the heading, and the loaded tips), as the simulation's
   ground truth defines it; X_CoM/X_SP is the CoM's place between its rear and front extent;
 * ``x_ratio_planted``, the same between the rear-most and front-most of both ankles and both tips
-  whatever they carry: the step-length compensation's input at a swing's start, when all four are
-  on the floor (the loaded support flips as a stick's load crosses its threshold, and with it the
-  ratio, by up to 1).
+  whatever they carry (the loaded support flips as a stick's load crosses its threshold, and with
+  it the ratio, by up to 1);
+* :meth:`StateEstimator.stance_ratio`, the step-length compensation's input at a swing's start:
+  the same over the support that carries the swing, the stance ankle and both tips (the swing foot
+  is about to leave the floor). The patient's lean follows where it placed the sticks, and this is
+  the ratio that sees it: over both feet the rear foot dilutes it (docs/SIM.md item 24).
 """
 
 from __future__ import annotations
@@ -162,6 +165,11 @@ class StateEstimator:
         return Estimate(np.array(com), np.array(ankles), np.array(tips), feet_loaded, sticks_loaded, floor_z,
                         np.array(support).reshape(-1, 2), self.fore_aft_ratio(com[0], [p[0] for p in support]),
                         self.fore_aft_ratio(com[0], planted), (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]))
+
+    def stance_ratio(self, est: Estimate, stance: int) -> float:
+        """X_CoM/X_SP over the support of a swing of the other leg: between the rear-most and the
+        front-most of leg ``stance``'s ankle (0 left, 1 right) and both stick tips."""
+        return self.fore_aft_ratio(float(est.com[0]), [float(est.ankles[stance][0]), *est.tips[:, 0].tolist()])
 
     def fore_aft_ratio(self, com_x: float, xs: list[float]) -> float:
         """The CoM's place between the rear-most and the front-most of ``xs``; nan for a support

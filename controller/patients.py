@@ -2,7 +2,9 @@
 
 A patient file holds the theta = (alpha, Xhat_CoM) to walk with (the learner's evaluation theta:
 the mean of its last updates) and the whole learner state, so that learning resumes where it
-stopped. It is written atomically after every update; a file that cannot be read, does not parse
+stopped. Theta means something only with the X_CoM/X_SP it was learned on, so the file names it
+(``x_ratio``): a file of another one (version 1: over both feet) is refused, to be relearned.
+It is written atomically after every update; a file that cannot be read, does not parse
 or holds parameters out of their bounds is a :class:`PatientError` naming the file, never a
 silent fallback to the defaults.
 """
@@ -24,7 +26,9 @@ from config.loader import AiderError
 from controller.pi2 import LearnerError, Pi2Learner
 
 FORMAT = "aider-exo patient"
-VERSION = 1
+VERSION = 2
+#: the X_CoM/X_SP that theta maps to a step length (controller.estimator.StateEstimator.stance_ratio)
+X_RATIO = "stance ankle and stick tips"
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
 
 
@@ -58,8 +62,13 @@ def load_patient(
         return None
     except (OSError, ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deep
         raise PatientError(f"{path}: cannot read the patient file ({exc})") from None
-    if not isinstance(data, dict) or data.get("format") != FORMAT or data.get("version") != VERSION:
-        raise PatientError(f"{path}: not an {FORMAT!r} file of version {VERSION}")
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise PatientError(f"{path}: not an {FORMAT!r} file")
+    if data.get("version") == 1:
+        raise PatientError(f"{path}: theta learned on X_CoM/X_SP over both feet (version 1); this controller's is over the "
+                           f"{X_RATIO}: relearn the patient")
+    if data.get("version") != VERSION or data.get("x_ratio") != X_RATIO:
+        raise PatientError(f"{path}: not an {FORMAT!r} file of version {VERSION} with x_ratio {X_RATIO!r}")
     theta = data.get("theta")
     if not (isinstance(theta, list) and len(theta) == 2
             and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in theta)):
@@ -90,7 +99,7 @@ def save_patient(directory: str | os.PathLike[str], name: str, theta: Any, learn
 
 
 def _write(path: Path, theta: list[float], learner_state: dict[str, Any] | None, name: str) -> None:
-    data = {"format": FORMAT, "version": VERSION, "patient": name, "theta": theta, "learner": learner_state}
+    data = {"format": FORMAT, "version": VERSION, "patient": name, "x_ratio": X_RATIO, "theta": theta, "learner": learner_state}
     text = json.dumps(data, indent=1, allow_nan=False)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

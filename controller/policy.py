@@ -44,9 +44,10 @@ class StepRecord:
     placed_m: float = math.nan  # as placed: the swing ankle ahead of the other when the next swing starts
     requested_m: float = math.nan
     clamped: bool = False
-    x_ratio: float = math.nan  # X_CoM / X_SP at the swing's start
-    # the same over the support that carries the swing: the stance ankle to the front-most stick tip
-    x_ratio_stance: float = math.nan
+    # X_CoM / X_SP at the swing's start over the support that carries the swing (the stance ankle
+    # and both stick tips): the compensation's input
+    x_ratio: float = math.nan
+    x_ratio_planted: float = math.nan  # the same over both feet and both tips
     theta: tuple[float, float] | None = None
     landed: bool = False
     force_sum_n: float = 0.0
@@ -65,7 +66,7 @@ class StepRecord:
         return {
             "index": self.index, "leg": self.leg, "start_tick": self.start_tick, "swing_tick": self.swing_tick,
             "end_tick": self.end_tick, "length_m": _r(self.length_m), "aimed_m": _r(self.aimed_m), "placed_m": _r(self.placed_m), "requested_m": _r(self.requested_m),
-            "clamped": self.clamped, "x_ratio": _r(self.x_ratio), "x_ratio_stance": _r(self.x_ratio_stance),
+            "clamped": self.clamped, "x_ratio": _r(self.x_ratio), "x_ratio_planted": _r(self.x_ratio_planted),
             "theta": None if self.theta is None else [round(v, 4) for v in self.theta],
             "landed": self.landed, "mean_stick_force_n": _r(self.mean_stick_force_n, 2),
         }

@@ -12,7 +12,7 @@ import pytest
 from config import default_config_path, load_config
 from controller.estimator import Measurements, StateEstimator, rot_rpy
 from sim.truth import fore_aft_ratio, pivot_polygon
-from sim.walk import Walker, gait_settings, initial_pose
+from sim.walk import OTHER, Walker, gait_settings, initial_pose
 from sim.world import World
 
 CFG = load_config(default_config_path())
@@ -56,7 +56,7 @@ def truth(walker: Walker, world: World, threshold_n: float = 20.0):
 def test_estimates_match_the_ground_truth_over_a_walk(mode):
     sim_cfg = dataclasses.replace(CFG.sim, mode=mode)
     estimator = StateEstimator(CFG.controller.body, CFG.controller.legs)
-    errors: dict[str, list[float]] = {"com": [], "ankle": [], "tip": [], "ratio": []}
+    errors: dict[str, list[float]] = {"com": [], "ankle": [], "tip": [], "ratio": [], "stance": []}
     agree = []
     with World(sim_cfg) as world:
         world.place(initial_pose(sim_cfg))
@@ -75,6 +75,11 @@ def test_estimates_match_the_ground_truth_over_a_walk(mode):
             agree.append(list(est.feet_loaded) == feet and list(est.sticks_loaded) == sticks)
             if not (math.isnan(ratio) or math.isnan(est.x_ratio)):  # nan: no fore-aft extent to speak of
                 errors["ratio"].append(abs(est.x_ratio - ratio))
+            if all(feet) and all(sticks):  # where a swing may start: over its stance ankle and the tips
+                stance = "lr".index(OTHER[walker.next_swing])
+                xs = [ankles[stance][0], *tips[:, 0]]
+                want = (com[0] - min(xs)) / (max(xs) - min(xs))
+                errors["stance"].append(abs(estimator.stance_ratio(est, stance) - want))
         assert len(walker.steps) >= (2 if mode == "sagittal" else 0)
     worst = {k: float(np.max(v)) for k, v in errors.items()}
     mean = {k: float(np.mean(v)) for k, v in errors.items()}
@@ -83,6 +88,8 @@ def test_estimates_match_the_ground_truth_over_a_walk(mode):
     assert mean["com"] < 0.005 and worst["com"] < 0.015
     assert mean["tip"] < 0.015 and worst["tip"] < 0.05
     assert mean["ratio"] <= 0.05  # the goal for X_CoM/X_SP
+    if mode == "sagittal":  # the compensation's input (the 3-D walk falls before its first swing)
+        assert len(errors["stance"]) > 50 and mean["stance"] <= 0.05
     assert np.mean(agree) > 0.85  # loaded or not: the sensors' thresholds agree with the contacts' (2 N noise near a 10 N threshold)
     assert len(errors["ratio"]) > 0.7 * len(errors["com"])
 

@@ -293,13 +293,13 @@ def test_intention_experiment_walks_fixed_lengths_with_a_varying_intention(tmp_p
         rows = list(csv.DictReader(f))
     assert {float(r["length_m"]) for r in rows} == {0.10, 0.12}
     assert len({r["intention_m"] for r in rows}) > 1  # the noisy regime: each step its own intention
-    # over the support that carries the swing the CoM sits farther back than over all four contacts
-    assert all(float(r["x_ratio_stance"]) < float(r["x_ratio"]) for r in rows)
+    # over the support that carries the swing (the compensation's) the CoM sits farther back than over all four contacts
+    assert all(float(r["x_ratio"]) < float(r["x_ratio_planted"]) for r in rows)
     for name in ("intention.png", "intention.md"):
         assert (tmp_path / name).stat().st_size > 0
     assert main(["experiment", "intention", "--out", str(tmp_path), "--workers", "0", "--walks", "1", "--min", "0.10",
                  "--max", "0.12", "--bins", "2", "--set", "controller.learning.steps_per_rollout=1", "--quiet", "--json",
-                 "--bin-by", "stance"]) == 0  # the same walks, from the cache
-    stance = json.loads((tmp_path / "intention.json").read_text())
-    assert stance["bin_by"] == "stance" and stance["swings"] == s["swings"]
+                 "--bin-by", "planted"]) == 0  # the same walks, from the cache
+    planted = json.loads((tmp_path / "intention.json").read_text())
+    assert s["bin_by"] == "stance" and planted["bin_by"] == "planted" and planted["swings"] == s["swings"]
     assert main(["experiment", "intention", "--out", str(tmp_path), "--every", "0", "--quiet"]) == 1

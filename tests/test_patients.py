@@ -5,6 +5,7 @@ never a silent fall-back to the defaults); the saver writes off the tick and clo
 from __future__ import annotations
 
 import json
+import math
 import threading
 
 import numpy as np
@@ -41,7 +42,8 @@ def learner_with_an_update(seed: int = 3):
 
 
 def valid_file(**changes) -> dict:
-    data = {"format": patients.FORMAT, "version": patients.VERSION, "patient": "p", "theta": [-0.5, 0.6], "learner": None}
+    data = {"format": patients.FORMAT, "version": patients.VERSION, "patient": "p", "x_ratio": patients.X_RATIO,
+            "theta": [-0.5, 0.6], "learner": None}
     data.update(changes)
     return data
 
@@ -68,6 +70,7 @@ def test_a_patient_file_round_trips_theta_and_the_learner_state(tmp_path):
     assert path == tmp_path / "patients" / "anna-1.json"
     data = json.loads(path.read_text())
     assert data["format"] == patients.FORMAT and data["version"] == patients.VERSION and data["patient"] == "anna-1"
+    assert data["x_ratio"] == patients.X_RATIO  # the X_CoM/X_SP theta was learned on
     assert [p.name for p in path.parent.iterdir()] == ["anna-1.json"]  # written atomically: no temporary file left
 
     record = load_patient(tmp_path / "patients", "anna-1")
@@ -120,13 +123,15 @@ BAD_FILES = {
     "unknown format": json.dumps(valid_file(format="some other tool")).encode(),
     "no format": json.dumps({k: v for k, v in valid_file().items() if k != "format"}).encode(),
     "newer version": json.dumps(valid_file(version=patients.VERSION + 1)).encode(),
+    "another X_CoM/X_SP": json.dumps(valid_file(x_ratio="both feet and stick tips")).encode(),
+    "no X_CoM/X_SP": json.dumps({k: v for k, v in valid_file().items() if k != "x_ratio"}).encode(),
     "no theta": json.dumps({k: v for k, v in valid_file().items() if k != "theta"}).encode(),
     "one number": json.dumps(valid_file(theta=[1.0])).encode(),
     "three numbers": json.dumps(valid_file(theta=[-1.0, 0.5, 2.0])).encode(),
     "a string": json.dumps(valid_file(theta=["-1", 0.5])).encode(),
     "booleans": json.dumps(valid_file(theta=[False, True])).encode(),
-    "NaN": b'{"format": "aider-exo patient", "version": 1, "theta": [NaN, 0.5], "learner": null}',
-    "Infinity": b'{"format": "aider-exo patient", "version": 1, "theta": [-1.0, Infinity], "learner": null}',
+    "NaN": json.dumps(valid_file(theta=[math.nan, 0.5])).encode(),
+    "Infinity": json.dumps(valid_file(theta=[-1.0, math.inf])).encode(),
     "learner not an object": json.dumps(valid_file(learner=[1, 2])).encode(),
     "nested too deep": b"[" * 100_000,
 }
@@ -137,6 +142,16 @@ def test_a_bad_patient_file_is_a_one_line_error_naming_it(tmp_path, kind):
     path = tmp_path / "p.json"
     path.write_bytes(BAD_FILES[kind])
     with pytest.raises(PatientError) as info:
+        load_patient(tmp_path, "p")
+    assert_one_line_naming(info.value, path)
+
+
+def test_a_version_1_file_learned_on_the_other_ratio_is_refused_to_be_relearned(tmp_path):
+    # version 1 files hold a theta of X_CoM/X_SP over both feet: on this controller's ratio (over the
+    # stance ankle and the tips, about half as large) it would ask for other steps entirely
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps({k: v for k, v in valid_file(version=1).items() if k != "x_ratio"}))
+    with pytest.raises(PatientError, match="version 1.*relearn") as info:
         load_patient(tmp_path, "p")
     assert_one_line_naming(info.value, path)
 

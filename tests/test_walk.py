@@ -80,6 +80,10 @@ def test_two_gait_cycles_walk_without_a_fall_and_estimate_the_com_ratio_within_t
         if prev is not None:
             assert s.start_tick == prev.end_tick  # a step runs from the previous landing to its own
         assert s.theta == outcome.theta and math.isfinite(s.x_ratio)
+        # the step is equation (8) of X_CoM/X_SP over the stance ankle and the tips, the support of
+        # the swing: the CoM sits farther back in it than between the rear foot and the tips
+        assert s.requested_m == pytest.approx(c.step.init_m + c.compensation.alpha * (c.compensation.xhat_com - s.x_ratio))
+        assert 0.0 < s.x_ratio < s.x_ratio_planted
         assert s.samples > 0 and s.mean_stick_force_n > 0.0
     assert outcome.mean_stick_force_n == pytest.approx(np.mean([s.mean_stick_force_n for s in steps]))
     summary = outcome.summary()
@@ -101,12 +105,13 @@ def test_a_lean_at_rest_with_the_sticks_light_presses_on_them_and_the_step_start
             pressed.append(result.tick)
 
     # the model before issue 28's intention (stiffer ankles, a lean past the patient's goal, no floor
-    # over the stance foot), where seed 0's fifth lean rests on the feet
+    # over the stance foot, one placement every step), where seed 0's fifth lean rests on the feet
     before = {"sim.model.joints.ankle.upper_rad": 0.40, "controller.gait.lean_past_goal_m": 0.06,
               "controller.gait.lean_over_stance_m": 0.0, "sim.gait.lean_past_stance_m": 0.0,
-              "sim.patient.intention.reference": "com", "sim.patient.intention.ahead_m": 0.35}
+              "sim.patient.intention.regime": "steady", "sim.patient.intention.reference": "com", "sim.patient.intention.ahead_m": 0.35}
     waiting = with_overrides(BASE, {**before, "controller.gait.lean_stall_s": 1.0, "controller.gait.lean_start_s": 1.0})
-    outcome = walk(waiting, cycles=3, seed=0, mode="sagittal", on_tick=on_tick)
+    policy, _ = factory.step_policy(waiting.controller, fixed_m=0.14)  # about the steps of the compensation then
+    outcome = walk(waiting, cycles=3, seed=0, mode="sagittal", on_tick=on_tick, policy=policy)
     assert_walked(outcome, 3)
     assert pressed, "no lean came to rest: the case this test is about did not happen"
     press_step = next(s for s in outcome.steps if s.start_tick <= pressed[0] < s.swing_tick)
@@ -162,7 +167,8 @@ def test_a_step_as_placed_is_the_feet_spacing_measured_when_the_next_swing_start
             x = {side: float(host.patient.ankle_xy(side)[0]) for side in "lr"}
             truth[result.tick] = {"l": x["l"] - x["r"], "r": x["r"] - x["l"]}
 
-    outcome = walk(BASE, cycles=2, seed=0, mode="sagittal", policy=policy, on_tick=on_tick)
+    steady = with_overrides(BASE, {"sim.patient.intention.regime": "steady"})  # one fixed length fits a steady patient
+    outcome = walk(steady, cycles=2, seed=0, mode="sagittal", policy=policy, on_tick=on_tick)
     steps = outcome.landed
     assert len(steps) == 4 and math.isnan(steps[-1].placed_m)  # no swing after the last one
     for step, following in itertools.pairwise(steps):
@@ -232,8 +238,8 @@ def test_a_walk_that_the_controller_holds_ends_there_with_the_cause():
     stall time, which would report it as a stall), and says why."""
     from tools.experiment.runner import WalkJob, run_walk
 
-    # the left stick reads 0 N from early in the first swing (ticks 178-231, seed 0) on: a slipped crutch (F19)
-    slipped = {"kind": "sensor_value", "node": "LEFT_HIP", "start_tick": 190, "message": "STICK_LEFT", "signal": "force_N", "value": 0.0}
+    # the left stick reads 0 N from early in the first swing (ticks 214-266, seed 0) on: a slipped crutch (F19)
+    slipped = {"kind": "sensor_value", "node": "LEFT_HIP", "start_tick": 226, "message": "STICK_LEFT", "signal": "force_N", "value": 0.0}
     cfg = with_overrides(BASE, {"nodes.faults": {"slip": slipped}})
     outcome = walk(cfg, cycles=2, seed=0, mode="sagittal")
     assert outcome.final_state == "HOLD" and outcome.hold.startswith("STICK_UNLOADED(left stick")

@@ -76,10 +76,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     help="the patient's intention (sim.patient.intention.regime; default noisy: the bins need a varying one)")
     ip.add_argument("--spread", type=float, metavar="M",
                     help="its spread, m (sim.patient.intention.spread_m; default the configured one)")
-    ip.add_argument("--bin-by", choices=("planted", "stance", "intention"), default="planted",
-                    help="bin the swings by X_CoM/X_SP at their start over both ankles and both tips (planted: the "
-                         "compensation's input, default), over the support that carries the swing (stance: stance ankle "
-                         "to the front-most tip), or by the patient's intention (the physics alone)")
+    ip.add_argument("--bin-by", choices=("stance", "planted", "intention"), default="stance",
+                    help="bin the swings by X_CoM/X_SP at their start over the support that carries the swing (stance: "
+                         "the stance ankle and both tips, the compensation's input, default), over both ankles and both "
+                         "tips (planted), or by the patient's intention (the physics alone)")
     ip.set_defaults(func=run_intention)
 
     ap = xsub.add_parser("all", help="learning from A and B, then the comparison with the learned theta; figures, CSV, report")

@@ -54,14 +54,14 @@ class Swing:
     walk_seed: int
     index: int  # in its walk
     length_m: float
-    x_ratio: float  # X_CoM/X_SP at the swing's start
+    x_ratio: float  # X_CoM/X_SP at the swing's start, the compensation's input (stance ankle and tips)
     previous_m: float | None  # the step before it (None: the first)
     ended: bool  # the walk ended in this step, before it landed
     ended_after: bool  # the walk ended in the double support after this step landed
     end: str  # how the walk ended (for the step it ended in or after)
     stick_force_n: float  # the landed step's mean stick force (nan: it did not land)
     intention_m: float  # the patient's intended stick placement before this swing (nan: unknown)
-    x_ratio_stance: float  # X_CoM/X_SP at the swing's start over the stance ankle and the tips (nan: unknown)
+    x_ratio_planted: float  # the same over both ankles and both tips (nan: unknown)
 
 
 def swings(results: list[dict[str, Any]]) -> list[Swing]:
@@ -70,15 +70,15 @@ def swings(results: list[dict[str, Any]]) -> list[Swing]:
     for r in results:
         rows, forces = r["swings"], r["step_stick_force_n"]
         intentions = r.get("swing_intention_m") or [None] * len(rows)
-        stance = r.get("swing_x_ratio_stance") or [None] * len(rows)
+        planted = r.get("swing_x_ratio_planted") or [None] * len(rows)
         # A walk that ended with every swing landed ended in double support: after its last step.
         after_last = bool(r["fell"] and rows and rows[-1][2])
-        for i, ((length, ratio, landed), intention, ratio_stance) in enumerate(zip(rows, intentions, stance)):
+        for i, ((length, ratio, landed), intention, ratio_planted) in enumerate(zip(rows, intentions, planted)):
             ended = not landed and r["fell"]
             after = after_last and i == len(rows) - 1
             force = forces[i] if landed and i < len(forces) else math.nan
             out.append(Swing(r["job"]["seed"], i, length, ratio, rows[i - 1][0] if i else None, ended, after,
-                             r["end"] if ended or after else "", force, _nan(intention), _nan(ratio_stance)))
+                             r["end"] if ended or after else "", force, _nan(intention), _nan(ratio_planted)))
     return out
 
 

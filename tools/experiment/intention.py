@@ -56,17 +56,17 @@ def _quantiles(x: np.ndarray) -> dict[str, float | None]:
 
 
 #: what the swings are binned by: X_CoM/X_SP at the swing's start as the compensation reads it
-#: (``planted``: between the rear-most and front-most of both ankles and both tips), over the
-#: support that carries the swing (``stance``: the stance ankle to the front-most tip), or the
-#: patient's intention itself (``intention``: what the controller cannot see, the physics alone)
+#: (``stance``: over the support that carries the swing, the stance ankle and both tips), over
+#: both ankles and both tips (``planted``), or the patient's intention itself (``intention``: what
+#: the controller cannot see, the physics alone)
 BIN_BY = {"planted": "X_CoM/X_SP (planted)", "stance": "X_CoM/X_SP (stance)", "intention": "intended placement (m)"}
 
 
 def _value(s: Swing, by: str) -> float:
-    return {"planted": s.x_ratio, "stance": s.x_ratio_stance, "intention": s.intention_m}[by]
+    return {"stance": s.x_ratio, "planted": s.x_ratio_planted, "intention": s.intention_m}[by]
 
 
-def analyse(results: list[dict[str, Any]], bins: int, by: str = "planted") -> dict[str, Any]:
+def analyse(results: list[dict[str, Any]], bins: int, by: str = "stance") -> dict[str, Any]:
     """The grid of falls and forces by (fixed length, bin of ``by``), the best step per bin and
     the checks of the module doc."""
     every = swings(results)
@@ -133,7 +133,7 @@ def _spearman(pairs: list[tuple[float, float]]) -> float | None:
 
 def csv_rows(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return [{"walk_seed": s.walk_seed, "step": s.index, "length_m": s.length_m, "x_ratio": s.x_ratio,
-             "x_ratio_stance": s.x_ratio_stance, "intention_m": s.intention_m, "stick_force_n": s.stick_force_n, "ended": s.ended,
+             "x_ratio_planted": s.x_ratio_planted, "intention_m": s.intention_m, "stick_force_n": s.stick_force_n, "ended": s.ended,
              "ended_after": s.ended_after, "end": s.end} for s in swings(results)]
 
 

@@ -29,10 +29,11 @@ import numpy as np
 from config import AiderError, Config, config_hash
 
 #: the stored result's format, part of every job's key: a result whose meaning changes gets a new
-#: number, and the walks of an older format are run again (/3: the patient's intention per swing
-#: and its clamped stick goals; /2: a walk ends at the controller's HOLD, ``end`` "hold CAUSE"; /1
-#: waited out the stall time and said "stalled")
-RESULT_FORMAT = "aider-exo.walk-result/3"
+#: number, and the walks of an older format are run again (/4: X_CoM/X_SP is the compensation's,
+#: over the stance ankle and the tips, and ``swing_x_ratio_planted`` the one over both feet; /3:
+#: the patient's intention per swing and its clamped stick goals; /2: a walk ends at the
+#: controller's HOLD, ``end`` "hold CAUSE"; /1 waited out the stall time and said "stalled")
+RESULT_FORMAT = "aider-exo.walk-result/4"
 
 
 class ExperimentError(AiderError):
@@ -121,8 +122,8 @@ def run_walk(cfg: Config, job: WalkJob) -> dict[str, Any]:
         "step_arm_torque_nm": [round(t, 4) for t in torques],
         # every step whose swing started, the last one too when it did not land: (length, X_CoM/X_SP at its start, landed)
         "swings": [[round(s.length_m, 5), round(s.x_ratio, 5), s.landed] for s in swings],
-        # X_CoM/X_SP at each of those swings' start over the support that carries it (stance ankle to the front-most tip)
-        "swing_x_ratio_stance": [_round(s.x_ratio_stance, 5) for s in swings],
+        # X_CoM/X_SP at each of those swings' start over both feet and both tips
+        "swing_x_ratio_planted": [_round(s.x_ratio_planted, 5) for s in swings],
         # the simulated patient's intended stick placement (sim.patient.intention) before each of those swings
         "swing_intention_m": _swing_intentions(outcome.intentions_m, len(swings)),
         "stick_clamps": outcome.stick_clamps,
