@@ -39,7 +39,10 @@ from pathlib import Path
 
 import can
 import pytest
+import yaml
 
+from config import default_config_path, load_config, with_overrides
+from config.loader import config_to_dict
 from controller.loop import READ_WINDOW_S
 from protocol.catalog import TICK_MS
 from protocol.clock import MonotonicClock
@@ -128,12 +131,22 @@ def _recording(interface: str, channel: str, log: Path):
     return candump(channel, log) if interface == "socketcan" else udp_record(channel, log)
 
 
-def _walk_two_processes(interface: str, channel: str, log: Path, cycles: int, *, lockstep: bool) -> tuple[dict, dict]:
+def _steady_patient_config(folder: Path) -> Path:
+    """The default configuration with the steady patient (one stick placement every step), as a
+    file for both processes."""
+    cfg = with_overrides(load_config(default_config_path()), {"sim.patient.intention.regime": "steady"})
+    path = folder / "steady-patient.yaml"
+    path.write_text(yaml.safe_dump(config_to_dict(cfg), sort_keys=False), encoding="utf-8")
+    return path
+
+
+def _walk_two_processes(interface: str, channel: str, log: Path, cycles: int, *, lockstep: bool,
+                        config: Path | None = None) -> tuple[dict, dict]:
     """``aider-exo nodes`` and ``aider-exo controller --cycles N`` on ``interface`` (socketcan or
     udp_multicast) and ``channel``, recorded (candump, or :func:`udp_record`); checks both exit
     cleanly and returns their JSON summaries."""
     mode = ["--lockstep"] if lockstep else []
-    bus = ["--bus", interface, "--channel", channel]
+    bus = ["--bus", interface, "--channel", channel] + (["--config", str(config)] if config else [])
     with _recording(interface, channel, log):
         nodes = subprocess.Popen(
             [AIDER, "nodes", *bus, *mode, "--mode", "sagittal", "--json", "--quiet"],
@@ -271,10 +284,14 @@ def test_controller_walks_five_gait_cycles_in_real_time_as_two_processes(interfa
     real-time gait defect of docs/CONTROLLER.md): the controller read three of the four nodes a
     tick late, as if on time, for the whole walk, after their first answers came late."""
     channel = request.getfixturevalue("vcan0" if interface == "socketcan" else "udp_multicast")
+    # The steady patient: with the default, noisy one a real-time walk can wait for good in a
+    # double support (about 1 in 8 walks on 2026-12-05; lock-step seed 39 does so deterministically,
+    # tests/test_walk.py), a gait defect of its own; this test is of the real-time transport.
+    steady = _steady_patient_config(tmp_path)
     stalled = []
     for attempt in range(1, RT_ATTEMPTS + 1):
         log = tmp_path / f"capture-{attempt}.log"
-        summary, final = _walk_two_processes(interface, channel, log, RT_CYCLES, lockstep=False)
+        summary, final = _walk_two_processes(interface, channel, log, RT_CYCLES, lockstep=False, config=steady)
         assert summary["mode"] == "realtime" and final["mode"] == "realtime"
         _check_capture(log, summary)  # whatever happened, what is on the bus is whole and in order
         stops = [t for t in _transitions(summary["events"]) if t[2] in ("FAULT", "HOLD")]
