@@ -284,9 +284,11 @@ def test_controller_walks_five_gait_cycles_in_real_time_as_two_processes(interfa
     real-time gait defect of docs/CONTROLLER.md): the controller read three of the four nodes a
     tick late, as if on time, for the whole walk, after their first answers came late."""
     channel = request.getfixturevalue("vcan0" if interface == "socketcan" else "udp_multicast")
-    # The steady patient: with the default, noisy one a real-time walk can wait for good in a
-    # double support (about 1 in 8 walks on 2026-12-05; lock-step seed 39 does so deterministically,
-    # tests/test_walk.py), a gait defect of its own; this test is of the real-time transport.
+    # The steady patient: this test is of the real-time transport. With the noisy one (the
+    # default) a real-time walk once waited for good in a double support (1 of about 8 walks on
+    # 2026-12-05, a stick moved 0.03 m that the controller did not see: lock-step seed 39 did the
+    # same, mended since by the patient's least stick move of 0.05 m, docs/SIM.md item 20; the
+    # noisy patient's real-time walks are yet to be shown as reliable).
     steady = _steady_patient_config(tmp_path)
     stalled = []
     for attempt in range(1, RT_ATTEMPTS + 1):
