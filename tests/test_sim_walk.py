@@ -44,12 +44,14 @@ def test_a_short_step_walks_in_the_plane_without_falling():
 def test_a_lean_that_stalls_past_the_stance_foot_starts_the_step():
     # With the ankles' dorsiflexion stop at 0.40 rad, at 0.16 m the trailing leg goes straight before
     # the lean reaches 0.05 m past the stance ankle (docs/SIM.md item 12; at the default 0.50 rad,
-    # or with the default 0.03 m least lean, the lean gets there).
+    # or with the default 0.03 m least lean, the lean gets there; with the default least stick move
+    # of 0.05 m the sticks stand farther ahead and it gets there too).
     # 0.16 m is at the edge of what the patient can walk: over more steps a walk may fall (seed 5
     # falls in its fifth step on an AVX-512 machine and walked six on an AVX2 one: the physics'
     # floating point differs by CPU), so the test asks for the steps the rule makes possible.
     stiff = with_overrides(load_config(default_config_path()), {"sim.mode": "sagittal", "sim.patient.intention.regime": "steady",
-                                                                "sim.model.joints.ankle.upper_rad": 0.40, "sim.gait.lean_past_stance_m": 0.05}).sim
+                                                                "sim.model.joints.ankle.upper_rad": 0.40, "sim.gait.lean_past_stance_m": 0.05,
+                                                                "sim.patient.stick_min_advance_m": 0.03}).sim
     stuck = walk(stiff, gait_settings(stiff, step_length_m=0.16, stalled_lean_s=1e9), seed=5, max_steps=4, max_time_s=25.0)
     assert not stuck.fell and stuck.steps_completed < 4  # waits for good
     result = walk(stiff, gait_settings(stiff, step_length_m=0.16), seed=5, max_steps=4, max_time_s=30.0)
