@@ -517,7 +517,7 @@ class ControllerCore:
             aim = self.gait.start_swing(leg, est, goal.length_m)
             step = self._step
             step.leg, step.swing_tick, step.x_ratio, step.theta = "lr"[leg], tick, x_ratio, theta
-            step.x_ratio_planted = float(est.x_ratio_planted)
+            step.x_ratio_planted = self.estimator.planted_ratio(est)
             step.length_m, step.requested_m, step.clamped, step.aimed_m = goal.length_m, goal.requested_m, goal.clamped, aim
             self.steps.append(step)
             events.append(f"step {step.index} ({step.leg}): {goal.length_m:.3f} m at X_CoM/X_SP {x_ratio:.2f}"

@@ -15,10 +15,10 @@ trunk's heading (its yaw removed), so the ratio needs no global position. Per ti
 * the support polygon is the pivot polygon of the loaded contacts (a passive ankle is a pin: its
   pivot, widened by half the sole across the heading, and the loaded tips), as the simulation's
   ground truth defines it; X_CoM/X_SP is the CoM's place between its rear and front extent;
-* ``x_ratio_planted``, the same between the rear-most and front-most of both ankles and both tips
-  whatever they carry (the loaded support flips as a stick's load crosses its threshold, and with
-  it the ratio, by up to 1);
-* :meth:`StateEstimator.stance_ratio`, the step-length compensation's input at a swing's start:
+* at a swing's start (not every tick), :meth:`StateEstimator.planted_ratio`, the same between the
+  rear-most and front-most of both ankles and both tips whatever they carry (the loaded support
+  flips as a stick's load crosses its threshold, and with it the ratio, by up to 1), and
+  :meth:`StateEstimator.stance_ratio`, the step-length compensation's input:
   the same over the support that carries the swing, the stance ankle and both tips (the swing foot
   is about to leave the floor). The patient's lean follows where it placed the sticks, and this is
   the ratio that sees it: over both feet the rear foot dilutes it (docs/SIM.md item 24).
@@ -79,7 +79,6 @@ class Estimate:
     floor_z: float  # the floor below the hip midpoint
     support: np.ndarray  # (k, 2) pivot polygon vertices of the loaded contacts
     x_ratio: float  # X_CoM / X_SP over the loaded contacts (nan without a support extent)
-    x_ratio_planted: float  # X_CoM / X_SP between the rear-most and front-most of both feet and both stick tips
     elbow_rad: tuple[float, float]
     tips_on_floor: tuple[bool, bool]  # whether the elbow angle could put the tip on the floor
 
@@ -161,15 +160,18 @@ class StateEstimator:
         com = (cx / self._mass_total, cy / self._mass_total, cz / self._mass_total)
 
         support = self._pivot_polygon(ankles, tips, feet_loaded, sticks_loaded)
-        planted = [ankles[0][0], ankles[1][0], tips[0][0], tips[1][0]]
         return Estimate(np.array(com), np.array(ankles), np.array(tips), feet_loaded, sticks_loaded, floor_z,
                         np.array(support).reshape(-1, 2), self.fore_aft_ratio(com[0], [p[0] for p in support]),
-                        self.fore_aft_ratio(com[0], planted), (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]))
+                        (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]))
 
     def stance_ratio(self, est: Estimate, stance: int) -> float:
         """X_CoM/X_SP over the support of a swing of the other leg: between the rear-most and the
         front-most of leg ``stance``'s ankle (0 left, 1 right) and both stick tips."""
         return self.fore_aft_ratio(float(est.com[0]), [float(est.ankles[stance][0]), *est.tips[:, 0].tolist()])
+
+    def planted_ratio(self, est: Estimate) -> float:
+        """X_CoM/X_SP between the rear-most and the front-most of both ankles and both stick tips."""
+        return self.fore_aft_ratio(float(est.com[0]), [*est.ankles[:, 0].tolist(), *est.tips[:, 0].tolist()])
 
     def fore_aft_ratio(self, com_x: float, xs: list[float]) -> float:
         """The CoM's place between the rear-most and the front-most of ``xs``; nan for a support

@@ -32,7 +32,7 @@ def estimate(ankles_x=(-0.06, 0.06), ankles_z=(-0.84, -0.84), com_x=0.0, tips_x=
     ankles = np.array([[ankles_x[0], 0.10, ankles_z[0]], [ankles_x[1], -0.10, ankles_z[1]]])
     tips = np.array([[tips_x[0], 0.25, -0.90], [tips_x[1], -0.25, -0.90]])
     return Estimate(com=np.array([com_x, 0.0, 0.10]), ankles=ankles, tips=tips, feet_loaded=(True, True),
-                    sticks_loaded=(True, True), floor_z=-0.90, support=np.zeros((0, 2)), x_ratio=math.nan, x_ratio_planted=math.nan,
+                    sticks_loaded=(True, True), floor_z=-0.90, support=np.zeros((0, 2)), x_ratio=math.nan,
                     elbow_rad=(1.0, 1.0), tips_on_floor=(True, True))
 
 
