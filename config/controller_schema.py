@@ -165,7 +165,7 @@ class SafetyConfig:
     overrun_window_ticks: int = field_spec(doc="... within this many ticks, or one overrun of more than overrun_max_ticks: HOLD (F25).", min=10, max=1000)
     overrun_max_ticks: int = field_spec(doc="An overrun that skips more ticks than this: HOLD at once (F25: 3).", min=1, max=50)
     stuck_ticks: int = field_spec(doc="An encoder reading exactly the same for this many ticks ...", min=2, max=25)
-    stuck_motion_rad: float = field_spec(doc="... while its setpoint moved this much: ENCODER_STUCK, FAULT (F14).", unit="rad", min=0.005, max=0.5)
+    stuck_motion_rad: float = field_spec(doc="... with its setpoint this much further from the reading than when the reading froze: ENCODER_STUCK, FAULT (F14).", unit="rad", min=0.005, max=0.5)
     fall_tilt_rad: float = field_spec(doc="Trunk roll or pitch beyond this ...", unit="rad", min=0.1, max=1.2)
     fall_ticks: int = field_spec(doc="... for this many ticks: a fall, FAULT (F18).", min=1, max=5)
     stick_unloaded_n: float = field_spec(doc="A stick carrying less than this ...", unit="N", min=0.0, max=50.0)

@@ -15,7 +15,7 @@ state every tick and runs the gait: in DOUBLE_SUPPORT and the swings the legs fo
 configuration's ``controller.safety`` (docs/SAFETY.md lists every row of FAULTS.md). FAULT latches
 on a lost node (no status for ``lost_ticks`` ticks), a drive fault or a fault EMCY, a node that
 reboots, a command beyond the safety envelope, a fall (trunk tilt beyond ``fall_tilt_rad`` for
-``fall_ticks`` ticks, F18), an encoder stuck while its setpoint moves (F14), a measured joint angle beyond its limit by more than the
+``fall_ticks`` ticks, F18), an encoder stuck while its setpoint moves away from it (F14), a measured joint angle beyond its limit by more than the
 envelope's ``position_excess_rad`` (F16), a sensor frame missing as long as a lost node's status,
 ``integrity_errors`` node frames rejected for their CRC or counter
 sequence within ``integrity_window_ticks`` (F6-F8), and sends failing in ``send_failure_ticks`` ticks
@@ -286,12 +286,19 @@ class ControllerCore:
             self._overrun_stop = f"OVERRUN({len(self._overruns)} in {s.overrun_window_ticks} ticks)"
 
     def _check_following(self, m: Measurements | None, fresh: bool) -> None:
-        """F14: while the joints track, an encoder whose reading stays exactly the same for
-        ``stuck_ticks`` ticks while its setpoint moves ``stuck_motion_rad`` is stuck (its joint
-        moves, its reading does not). A following-error rule (the measured angle far from the
-        setpoint) is not used: a step too long for the patient drives the joints off their
-        setpoints as the body falls, and would name the fall a fault of the legs. Streak
-        counters, O(1) a joint and tick."""
+        """F14: while the joints track, an encoder stuck while its joint moves: its reading stays
+        exactly the same while the setpoint moves away from it. A tick counts when the reading
+        is the one of the tick before and the setpoint stands ``stuck_motion_rad`` further from it
+        than when the reading last changed; ``stuck_ticks`` such ticks are ENCODER_STUCK.
+
+        Not a setpoint that merely moves while the reading stands: a loaded knee at a swing's
+        start keeps its reading while the setpoint first closes the gap it held the knee at (in
+        the real-time walks of 2026-12-05 up to 4 such ticks while the setpoint moved 0.03-0.04
+        rad; an extra tick of the nodes' latency made ENCODER_STUCK of a sound knee, once in CI).
+        Measured away from the frozen reading, the same walks count at most 2. A following-error
+        rule (the measured angle far from the setpoint) is not used either: a step too long for
+        the patient drives the joints off their setpoints as the body falls, and would name the
+        fall a fault of the legs. O(1) a joint and tick."""
         f = self._follow
         if self._targets is None or m is None or not fresh:
             f.reset()
@@ -299,14 +306,13 @@ class ControllerCore:
         s = self.safety
         q, c = m.joint_position_rad.tolist(), self._targets.tolist()
         for j in range(4):
-            qj, cj = q[j], c[j]
-            if qj == f.reading[j]:
+            gap = abs(c[j] - q[j])
+            if q[j] != f.reading[j]:
+                f.reading[j], f.same[j], f.gap[j] = q[j], 0, gap
+            elif gap - f.gap[j] >= s.stuck_motion_rad:
                 f.same[j] += 1
-                f.lo[j], f.hi[j] = min(f.lo[j], cj), max(f.hi[j], cj)
-                if f.same[j] >= s.stuck_ticks and f.hi[j] - f.lo[j] >= s.stuck_motion_rad:
+                if f.same[j] >= s.stuck_ticks:
                     self.pending_faults.append(f"ENCODER_STUCK({self.node_names[j]})")
-            else:
-                f.reading[j], f.same[j], f.lo[j], f.hi[j] = qj, 0, cj, cj
 
     def _check_sticks(self, before: GaitState, m: Measurements | None, fresh: bool) -> str | None:
         """F19: a stick that carries less than ``stick_unloaded_n`` for ``stick_unloaded_ticks``
@@ -552,13 +558,12 @@ class ControllerCore:
 
 @dataclass
 class _Following:
-    """Per joint: ticks with the same reading, and the setpoints' range since the reading last
-    changed (ControllerCore._check_following)."""
+    """Per joint: the reading, the setpoint's distance from it when it last changed, and the ticks
+    since that the setpoint stood ``stuck_motion_rad`` further away (ControllerCore._check_following)."""
 
     same: list[int] = field(default_factory=lambda: [0] * 4)
     reading: list[float] = field(default_factory=lambda: [math.nan] * 4)
-    lo: list[float] = field(default_factory=lambda: [0.0] * 4)
-    hi: list[float] = field(default_factory=lambda: [0.0] * 4)
+    gap: list[float] = field(default_factory=lambda: [0.0] * 4)
 
     def reset(self) -> None:
         self.same[:], self.reading[:] = [0] * 4, [math.nan] * 4

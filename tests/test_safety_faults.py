@@ -185,11 +185,13 @@ CASES = [
     Case("F10", "stance", bus_rule("truncate", frozenset({STATUS["LEFT_KNEE"]})), FAULT, r"NODE_LOST\(LEFT_KNEE\)", detect=LOST - 1),
     # F12, F13: sends failing (after one retry) in send_failure_ticks ticks in a row.
     Case("F12", "swing", send_failures, FAULT, "BUS_SEND_FAILED", detect=SAFETY.send_failure_ticks),
-    # F14: an encoder stuck while its joint moves (mid-swing the swing knee moves fast; in stance slowly).
+    # F14: an encoder stuck while its joint moves. Mid-swing the swing knee moves fast: its setpoint
+    # stands stuck_motion_rad beyond the frozen reading within 2 ticks. The stance hip moves slowly
+    # and back and forth mid-swing (0.003-0.01 rad a tick): 4 ticks.
     Case("F14", "swing", node_fault("stuck_encoder", "RIGHT_KNEE"), FAULT, r"ENCODER_STUCK\(RIGHT_KNEE\)",
          detect=SAFETY.stuck_ticks + 2),
     Case("F14", "swing", node_fault("stuck_encoder", "LEFT_HIP"), FAULT, r"ENCODER_STUCK\(LEFT_HIP\)",
-         detect=SAFETY.stuck_ticks + 2),
+         detect=SAFETY.stuck_ticks + 4),
     # F15: a sensor value out of its range on every frame: the frame is invalid, missing, then lost.
     Case("F15", "stance", node_fault("out_of_range", "LEFT_HIP", message="STICK_LEFT", signal="force_N", value=-500.0), FAULT,
          r"SENSOR_LOST\(STICK_LEFT\)", detect=LOST - 1),
@@ -371,6 +373,24 @@ def test_F25_overruns_before_the_nodes_are_up_are_not_budgeted():
 
 
 # -- rows checked at the controller (layer MP) ------------------------------------------------------
+
+
+def test_F14_a_knee_reading_held_at_a_swing_start_is_no_fault_until_the_setpoint_leaves_it():
+    """A loaded knee keeps its reading for the first ticks of a swing while its setpoint closes the
+    gap the load held it at (real time: up to 4 ticks, once 5 in CI, ENCODER_STUCK of a sound knee
+    under the rule that counted a moving setpoint). Held 7 ticks from the swing's start the walk
+    goes on; held for good it is ENCODER_STUCK once the setpoint has left the frozen reading
+    (stuck_ticks + 3 ticks from the swing's start)."""
+    for held, stopped in ((7, False), (None, True)):
+        with FaultRig(CFG, seed=3) as rig:
+            rig.walk_to(GaitState.SWING_RIGHT)
+            t0 = rig.tick
+            rig.inject_node("stuck_encoder", "RIGHT_KNEE", start_tick=t0, end_tick=None if held is None else t0 + held)
+            rig.run(NEXT_LANDING_TICKS)
+            if stopped:
+                expect_stop(rig, t0, FAULT, r"ENCODER_STUCK\(RIGHT_KNEE\)", detect=SAFETY.stuck_ticks + 3)
+            else:
+                expect_walking_on(rig, t0)
 
 
 def test_F16_a_measured_joint_beyond_its_limit_is_a_fault():
