@@ -308,10 +308,10 @@ class ControllerCore:
         for j in range(4):
             gap = abs(c[j] - q[j])
             if q[j] != f.reading[j]:
-                f.reading[j], f.same[j], f.gap[j] = q[j], 0, gap
+                f.reading[j], f.away[j], f.gap[j] = q[j], 0, gap
             elif gap - f.gap[j] >= s.stuck_motion_rad:
-                f.same[j] += 1
-                if f.same[j] >= s.stuck_ticks:
+                f.away[j] += 1
+                if f.away[j] >= s.stuck_ticks:
                     self.pending_faults.append(f"ENCODER_STUCK({self.node_names[j]})")
 
     def _check_sticks(self, before: GaitState, m: Measurements | None, fresh: bool) -> str | None:
@@ -561,12 +561,12 @@ class _Following:
     """Per joint: the reading, the setpoint's distance from it when it last changed, and the ticks
     since that the setpoint stood ``stuck_motion_rad`` further away (ControllerCore._check_following)."""
 
-    same: list[int] = field(default_factory=lambda: [0] * 4)
+    away: list[int] = field(default_factory=lambda: [0] * 4)
     reading: list[float] = field(default_factory=lambda: [math.nan] * 4)
     gap: list[float] = field(default_factory=lambda: [0.0] * 4)
 
     def reset(self) -> None:
-        self.same[:], self.reading[:] = [0] * 4, [math.nan] * 4
+        self.away[:], self.reading[:] = [0] * 4, [math.nan] * 4
 
 
 def _leg_index(swing: GaitState) -> int:
