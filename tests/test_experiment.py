@@ -11,9 +11,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from config import default_config_path, load_config, with_overrides
+from controller.compensation import StepBounds
 from tools.cli import main
 from tools.experiment import experiment, runner
 from tools.experiment.compare import GaitStats, compare_jobs
@@ -131,46 +133,88 @@ def test_rollout_cost_is_equation_11():
     assert walk_seed(0, 1, 2) == walk_seed(0, 1, 2) != walk_seed(0, 1, 3)
 
 
-def _run(start: str, seed: int, costs: list[float], cycles: list[int], final_theta: tuple[float, float]) -> LearningRun:
+BOUNDS = StepBounds(init_m=0.15, min_m=0.06, max_m=0.25)
+
+
+def _run(start: str, seed: int, costs: list[float], cycles: list[int], final_theta: tuple[float, float],
+         x_seen: tuple[float, ...] = (0.1, 0.2, 0.3)) -> LearningRun:
     run = LearningRun(start=start, seed=seed, theta0=STARTS[start])
     for i, (c, n) in enumerate(zip(costs, cycles)):
         run.updates.append(Update(index=i, theta=final_theta, evaluation_theta=final_theta if i else STARTS[start],
                                   evaluation_cost=c, evaluation_cycles=n, evaluation_end="walked" if n == 10 else "fell"))
+        if i:
+            run.rollouts.append({"update": i, "rollout": 1, "swings": [[0.1, x, True] for x in x_seen]})
     return run
 
 
 def test_learning_checks_follow_the_done_when_rules():
     good = [_run("A", 0, [5600, 3000, 700], [0, 4, 10], (-0.50, 0.55)), _run("B", 0, [5500, 800, 650], [1, 10, 10], (-0.52, 0.56))]
-    c = learning_checks(good, 10)
+    c = learning_checks(good, 10, BOUNDS)
     assert c["all_converge_together"] and c["all_reach_full_cycles"] and c["all_cut_cost_30_percent"]
     assert c["runs"]["A-s0"]["cut_30_at_update"] == 1 and c["runs"]["A-s0"]["first_full_at_update"] == 2
     apart = [good[0], _run("B", 0, [5500, 800, 650], [1, 10, 10], (-0.1, 0.9))]
-    assert not learning_checks(apart, 10)["all_converge_together"]
+    assert not learning_checks(apart, 10, BOUNDS)["all_converge_together"]
     flat = [_run("A", 0, [700, 690, 650], [10, 10, 10], (-0.5, 0.55))]
-    assert not learning_checks(flat, 10)["all_cut_cost_30_percent"]
+    assert not learning_checks(flat, 10, BOUNDS)["all_cut_cost_30_percent"]
     lost = [_run("A", 0, [5000, 1000, 3700], [0, 10, 3], (-0.5, 0.55))]  # cut once, lost again by the end
-    c = learning_checks(lost, 10)["runs"]["A-s0"]
+    c = learning_checks(lost, 10, BOUNDS)["runs"]["A-s0"]
     assert c["cut_30_at_update"] == 1 and not c["cost_cut_30_percent"] and not c["reaches_full_cycles"]
 
 
-def _walk(seed: int, cycles: int, force: float, fell: bool) -> dict:
+def test_a_and_b_apart_in_theta_agree_when_their_step_lines_do_where_they_walk():
+    # theta 40 % apart in alpha, but the lines g(X) = 0.15 + alpha (Xhat - X) cross at X 0.2 with
+    # slopes 0.04 m per unit ratio apart: 0.002 m apart at the ends of the X walked (0.15-0.25)
+    a = _run("A", 0, [5600, 700], [0, 10], (-0.10, 0.40), x_seen=(0.15, 0.2, 0.25))
+    b = _run("B", 0, [5500, 650], [0, 10], (-0.14, 0.3429), x_seen=(0.15, 0.2, 0.25))
+    seed = learning_checks([a, b], 10, BOUNDS)["seeds"][0]
+    assert not seed["same_within_10_percent"] and seed["lines"]["agree"] and seed["same_or_lines_agree"]
+    assert seed["lines"]["x_percentiles"] == pytest.approx([0.15, 0.2, 0.25])
+    assert max(seed["lines"]["difference_m"]) == pytest.approx(0.04 * 0.05, abs=1e-4)
+    # the same lines over a wider X (0.15 either side of the crossing): 0.006 m apart ...
+    wide = [_run(r.start, 0, [5600, 700], [0, 10], r.final.evaluation_theta, x_seen=(0.05, 0.2, 0.35)) for r in (a, b)]
+    assert learning_checks(wide, 10, BOUNDS)["seeds"][0]["lines"]["agree"]
+    # ... but not a pair 0.01 m apart at X 0.2 with slopes 0.5 and 0.3 m per unit ratio
+    steep = [_run("A", 0, [5600, 700], [0, 10], (-0.5, 0.3), x_seen=(0.05, 0.2, 0.35)),
+             _run("B", 0, [5500, 650], [0, 10], (-0.3, 0.3333), x_seen=(0.05, 0.2, 0.35))]
+    assert not learning_checks(steep, 10, BOUNDS)["seeds"][0]["lines"]["agree"]
+    # the lines are the steps as commanded: both clamped to the shortest step agree
+    short = [_run("A", 0, [5600, 700], [0, 10], (-1.0, 0.6)), _run("B", 0, [5500, 650], [0, 10], (-0.4, 0.9))]
+    assert learning_checks(short, 10, BOUNDS)["seeds"][0]["lines"]["length_A_m"] == [0.06, 0.06, 0.06]
+
+
+def _walk(seed: int, cycles: int, force: float, fell: bool, x: tuple[float, ...] = (0.2,)) -> dict:
     return {"job": {"seed": seed}, "cycles_completed": cycles, "fell": fell, "end": "fell" if fell else "walked",
-            "mean_stick_force_n": force, "mean_arm_torque_nm": 80.0, "step_lengths_m": [0.12]}
+            "mean_stick_force_n": force, "mean_arm_torque_nm": 80.0, "step_lengths_m": [0.12],
+            "swings": [[0.12, v, True] for v in x], "step_stick_force_n": [force] * len(x)}
 
 
 def test_comparison_checks_follow_the_done_when_rules():
-    def gaits(adaptive_force: float, long_cycles: int) -> list[GaitStats]:
+    def gaits(adaptive_force: float, long_cycles: int, long_falls: int = 3) -> list[GaitStats]:
         return [GaitStats("adaptive", (-0.5, 0.5), None, [_walk(s, 10, adaptive_force, False) for s in range(3)]),
                 GaitStats("0.10", None, 0.10, [_walk(s, 10, 64.0, False) for s in range(3)]),
                 GaitStats("0.12", None, 0.12, [_walk(s, 10, 58.0, False) for s in range(3)]),
-                GaitStats("0.20", None, 0.20, [_walk(s, long_cycles, 50.0, True) for s in range(3)])]
+                GaitStats("0.20", None, 0.20, [_walk(s, long_cycles, 50.0, s < long_falls) for s in range(3)])]
 
     c = comparison_checks(gaits(55.0, 2), 10)
     assert c["adaptive_force_below_every_non_falling_fixed"] and c["longest_fixed_falls_within_6_cycles"]
     assert not c["adaptive_torque_below_every_fixed"]  # 80 N.m for every gait: not below
     assert c["non_falling_fixed"] == ["0.10", "0.12"]
+    assert c["cheaper_fixed"] == ["0.20"] and c["every_cheaper_fixed_falls"]
     assert not comparison_checks(gaits(59.0, 2), 10)["adaptive_force_below_every_non_falling_fixed"]
     assert not comparison_checks(gaits(55.0, 7), 10)["longest_fixed_falls_within_6_cycles"]
+    # a cheaper fixed length that falls in 0 of 3 walks (below 30 %) is one the adaptive gait should beat
+    assert not comparison_checks(gaits(55.0, 2, long_falls=0), 10)["every_cheaper_fixed_falls"]
+    assert comparison_checks(gaits(55.0, 2, long_falls=1), 10)["every_cheaper_fixed_falls"]  # 1 of 3: 33 %
+
+
+def test_comparison_checks_how_far_x_com_spreads_over_every_compared_swing():
+    narrow = comparison_checks([GaitStats("adaptive", (-0.5, 0.5), None, [_walk(0, 10, 55.0, False, (0.2, 0.25, 0.3))])], 10)
+    assert narrow["x_ratio"]["swings"] == 3 and narrow["x_ratio"]["p50"] == 0.25 and not narrow["x_ratio_spreads"]
+    x = tuple(np.linspace(0.05, 0.45, 41))  # uniform over 0.4: sd 0.118, 10th-90th percentile 0.09-0.41
+    wide = comparison_checks([GaitStats("adaptive", (-0.5, 0.5), None, [_walk(0, 10, 55.0, False, x)]),
+                              GaitStats("0.10", None, 0.10, [_walk(0, 10, 60.0, False, x)])], 10)
+    assert wide["x_ratio"]["swings"] == 82 and wide["x_ratio"]["range_p10_p90"] == pytest.approx(0.32)
+    assert wide["x_ratio_spreads"]
 
 
 def test_compare_walks_every_gait_on_the_same_seeds():
@@ -180,6 +224,21 @@ def test_compare_walks_every_gait_on_the_same_seeds():
     for j in jobs:
         by_gait.setdefault((j.fixed_m, j.theta), []).append(j.seed)
     assert len({tuple(s) for s in by_gait.values()}) == 1
+
+
+def test_the_comparison_walks_every_gait_through_the_pipeline(tmp_path):
+    code = main(["experiment", "compare", "--out", str(tmp_path), "--workers", "0", "--walks", "1", "--theta", "-0.5", "0.4",
+                 "--set", "controller.learning.steps_per_rollout=1", "--quiet", "--json"])
+    assert code == 0
+    s = json.loads((tmp_path / "summary.json").read_text())
+    gaits = s["comparison"]["gaits"]
+    assert [g["gait"] for g in gaits] == ["adaptive", "0.10", "0.12", "0.14", "0.16", "0.18", "0.20"]
+    assert all(g["walks"] == 1 for g in gaits) and s["comparison"]["theta"] == [-0.5, 0.4]
+    spread = s["comparison"]["checks"]["x_ratio"]
+    assert spread["swings"] >= 7 and 0.0 < spread["p10"] <= spread["p50"] <= spread["p90"] < 1.0
+    for name in ("compare.csv", "fig8-12-compare.png", "step-lines.png", "report.md"):
+        assert (tmp_path / name).stat().st_size > 0, name
+    assert "X_CoM/X_SP at the swings' start over every compared walk" in (tmp_path / "report.md").read_text()
 
 
 def test_cli_errors_are_one_line(capsys, tmp_path):

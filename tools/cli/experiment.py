@@ -53,7 +53,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     cp.add_argument("--seed", type=int, default=0, help="seed of the compared walks (default 0)")
     cp.add_argument("--theta", type=float, nargs=2, metavar=("ALPHA", "XHAT"),
                     help="the adaptive gait's theta (default: the configured controller.compensation)")
-    cp.add_argument("--walks", type=positive_int, default=5, help="walks (seeds) per gait (default 5)")
+    cp.add_argument("--walks", type=positive_int, default=10, help="walks (seeds) per gait (default 10)")
     cp.set_defaults(func=run_compare)
 
     def walks_and_span(sp: argparse.ArgumentParser, walks: int, walks_help: str, lo: float, hi: float, step: str) -> None:
@@ -85,7 +85,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     ap = xsub.add_parser("all", help="learning from A and B, then the comparison with the learned theta; figures, CSV, report")
     common(ap)
     seeds(ap)
-    ap.add_argument("--walks", type=positive_int, default=5, help="walks (seeds) per gait in the comparison (default 5)")
+    ap.add_argument("--walks", type=positive_int, default=10, help="walks (seeds) per gait in the comparison (default 10)")
     ap.set_defaults(func=run_all)
 
 

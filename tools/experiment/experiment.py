@@ -13,8 +13,11 @@ from typing import Any
 import numpy as np
 
 from config import Config
+from controller.compensation import StepBounds, compensated_step
 from protocol.clock import Clock, MonotonicClock
 from tools.experiment.compare import ADAPTIVE, FIXED_LENGTHS_M, GaitStats, compare_jobs, comparison
+from tools.experiment.falls import swings
+from tools.experiment.intention import quantiles
 from tools.experiment.learn import STARTS, LearningRun, learning_run
 from tools.experiment.runner import ExperimentError, WalkJob, WalkPool
 from tools.experiment.schedule import Run, drive
@@ -31,7 +34,7 @@ class Plan:
     updates: int = 15
     compare: bool = False
     compare_theta: tuple[float, float] | None = None  # None with learning: the learned one
-    compare_walks: int = 5
+    compare_walks: int = 10
     mode: str = "sagittal"
     workers: int = 2
 
@@ -131,9 +134,40 @@ def learned_theta(runs: list[LearningRun]) -> tuple[float, float]:
 # -- the paper's claims, checked ----------------------------------------------------------------
 
 
-def learning_checks(runs: list[LearningRun], n: int, max_updates: int = 15) -> dict[str, Any]:
-    """Per seed: do A and B end within 10 % of each other, reach N of N stable cycles, and cut
-    the noise-free cost by 30 % within ``max_updates`` updates."""
+#: the step-length lines of A and B are compared at these percentiles of the X_CoM/X_SP their
+#: roll-outs saw over the last LINE_UPDATES updates (where the learned gait walks) ...
+LINE_PERCENTILES = (10, 50, 90)
+LINE_UPDATES = 5
+#: ... and agree when every difference is at most this, m
+LINE_AGREEMENT_M = 0.01
+
+
+def step_line(bounds: StepBounds, theta: tuple[float, float], x: np.ndarray) -> np.ndarray:
+    """The step lengths theta commands at X_CoM/X_SP ``x`` (equation (8), after the safety clamp)."""
+    return np.array([compensated_step(bounds, theta[0], theta[1], float(v)).length_m for v in x])
+
+
+def _x_seen(run: LearningRun, last: int) -> list[float]:
+    first = max(u.index for u in run.updates) - last + 1
+    return [x for ro in run.rollouts if ro["update"] >= first for _, x, _ in ro["swings"] if x is not None and math.isfinite(x)]
+
+
+def _lines(a: LearningRun, b: LearningRun, bounds: StepBounds) -> dict[str, Any]:
+    """Where A's and B's deployed step-length lines differ, at percentiles of the X they walked."""
+    x = np.array(_x_seen(a, LINE_UPDATES) + _x_seen(b, LINE_UPDATES))
+    if not len(x):
+        return {"x_percentiles": None, "length_A_m": None, "length_B_m": None, "difference_m": None, "agree": False}
+    at = np.percentile(x, LINE_PERCENTILES)
+    ga, gb = step_line(bounds, a.final.evaluation_theta, at), step_line(bounds, b.final.evaluation_theta, at)
+    diff = np.abs(ga - gb)
+    return {"x_percentiles": np.round(at, 4).tolist(), "length_A_m": np.round(ga, 4).tolist(), "length_B_m": np.round(gb, 4).tolist(),
+            "difference_m": np.round(diff, 4).tolist(), "agree": bool((diff <= LINE_AGREEMENT_M + 1e-9).all())}
+
+
+def learning_checks(runs: list[LearningRun], n: int, bounds: StepBounds, max_updates: int = 15) -> dict[str, Any]:
+    """Per seed: do A and B end within 10 % of each other (or else, do their step-length lines
+    agree within LINE_AGREEMENT_M where they walked), reach N of N stable cycles, and cut the
+    noise-free cost by 30 % within ``max_updates`` updates."""
     by_seed: dict[int, dict[str, LearningRun]] = {}
     for r in runs:
         by_seed.setdefault(r.seed, {})[r.start] = r
@@ -143,13 +177,15 @@ def learning_checks(runs: list[LearningRun], n: int, max_updates: int = 15) -> d
         if {"A", "B"} <= set(starts):
             a, b = np.array(starts["A"].final.evaluation_theta), np.array(starts["B"].final.evaluation_theta)
             rel = np.abs(a - b) / np.maximum(np.abs((a + b) / 2), 1e-9)
+            same = bool((rel <= 0.10).all())
+            lines = _lines(starts["A"], starts["B"], bounds)
             per_seed[seed] = {"theta_A": a.tolist(), "theta_B": b.tolist(), "relative_difference": np.round(rel, 4).tolist(),
-                              "same_within_10_percent": bool((rel <= 0.10).all())}
+                              "same_within_10_percent": same, "lines": lines, "same_or_lines_agree": same or lines["agree"]}
     every = [c for c in per_run.values()]
     return {
         "runs": per_run,
         "seeds": per_seed,
-        "all_converge_together": bool(per_seed) and all(s["same_within_10_percent"] for s in per_seed.values()),
+        "all_converge_together": bool(per_seed) and all(s["same_or_lines_agree"] for s in per_seed.values()),
         "all_reach_full_cycles": bool(every) and all(c["reaches_full_cycles"] for c in every),
         "all_cut_cost_30_percent": bool(every) and all(c["cost_cut_30_percent"] for c in every),
     }
@@ -173,9 +209,18 @@ def _run_check(r: LearningRun, n: int, max_updates: int) -> dict[str, Any]:
     }
 
 
+#: the comparison's X_CoM/X_SP at the swings' start must spread this much (a patient whose
+#: intention varies): a standard deviation and a 10th-to-90th percentile range of at least
+X_SPREAD_STD = 0.08
+X_SPREAD_RANGE = 0.25
+#: a fixed length cheaper than the adaptive gait must fall in at least this share of its walks
+CHEAPER_FALLS_SHARE = 0.3
+
+
 def comparison_checks(gaits: list[GaitStats], n: int) -> dict[str, Any]:
-    """The adaptive gait's stick force below every fixed length that never falls; every walk at
-    the longest fixed length falls within 6 cycles while the adaptive gait walks N of N."""
+    """The adaptive gait walks N of N in every walk, its stick force below every fixed length that
+    never falls, every fixed length cheaper than it falls in CHEAPER_FALLS_SHARE of its walks; every
+    walk at the longest fixed length falls within 6 cycles; X_CoM/X_SP spreads (X_SPREAD_*)."""
     s = {g.gait: g.summary(n) for g in gaits}
     adaptive = s.get(ADAPTIVE)
     if adaptive is None:
@@ -183,15 +228,24 @@ def comparison_checks(gaits: list[GaitStats], n: int) -> dict[str, Any]:
     safe = [k for k, v in s.items() if k != ADAPTIVE and v["falls"] == 0]
     lower = all(adaptive["stick_force_mean_n"] < s[k]["stick_force_mean_n"] for k in safe)
     fixed = [k for k in s if k != ADAPTIVE]
+    cheaper = [k for k in fixed if s[k]["stick_force_mean_n"] is not None and adaptive["stick_force_mean_n"] is not None
+               and s[k]["stick_force_mean_n"] < adaptive["stick_force_mean_n"]]
     torque_lower = all(adaptive["arm_torque_mean_nm"] < s[k]["arm_torque_mean_nm"] for k in fixed)
     longest = max(fixed, key=float, default=None)
     long_falls = (longest is not None and s[longest]["falls"] == s[longest]["walks"]
                   and max(s[longest]["cycles_at_fall"]) < 6)
+    x = np.array([sw.x_ratio for sw in swings([w for g in gaits for w in g.walks]) if math.isfinite(sw.x_ratio)])
+    spread = {"swings": len(x), **quantiles(x)}
+    spread["range_p10_p90"] = None if not len(x) else round(spread["p90"] - spread["p10"], 4)
     return {
         "non_falling_fixed": safe,
         "adaptive_force_below_every_non_falling_fixed": bool(safe) and lower,
         "adaptive_walks_full": adaptive["falls"] == 0,
+        "cheaper_fixed": cheaper,
+        "every_cheaper_fixed_falls": all(s[k]["falls"] >= CHEAPER_FALLS_SHARE * s[k]["walks"] for k in cheaper),
         "adaptive_torque_below_every_fixed": bool(fixed) and torque_lower,
         "longest_fixed": longest,
         "longest_fixed_falls_within_6_cycles": bool(long_falls),
+        "x_ratio": spread,
+        "x_ratio_spreads": bool(len(x)) and spread["std"] >= X_SPREAD_STD and spread["range_p10_p90"] >= X_SPREAD_RANGE,
     }

@@ -47,7 +47,8 @@ def _falls(rows: list[Swing]) -> int:
     return sum(s.ended or s.ended_after for s in rows)
 
 
-def _quantiles(x: np.ndarray) -> dict[str, float | None]:
+def quantiles(x: np.ndarray) -> dict[str, float | None]:
+    """Mean, standard deviation and 10th, 50th and 90th percentile of ``x`` (None each when empty)."""
     if not len(x):
         return {"mean": None, "std": None, "p10": None, "p50": None, "p90": None}
     p10, p50, p90 = np.percentile(x, [10, 50, 90])
@@ -66,13 +67,18 @@ def _value(s: Swing, by: str) -> float:
     return {"stance": s.x_ratio, "planted": s.x_ratio_planted, "intention": s.intention_m}[by]
 
 
+def bin_edges(v: np.ndarray, bins: int) -> np.ndarray:
+    """The edges of ``bins`` bins of equal counts over ``v`` (all zero when it is empty)."""
+    return np.percentile(v, np.linspace(0, 100, bins + 1)) if len(v) else np.zeros(bins + 1)
+
+
 def analyse(results: list[dict[str, Any]], bins: int, by: str = "stance") -> dict[str, Any]:
     """The grid of falls and forces by (fixed length, bin of ``by``), the best step per bin and
     the checks of the module doc."""
     every = swings(results)
     rows = [s for s in every if math.isfinite(_value(s, by))]
     v = np.array([_value(s, by) for s in rows])
-    edges = np.percentile(v, np.linspace(0, 100, bins + 1)) if len(v) else np.zeros(bins + 1)
+    edges = bin_edges(v, bins)
     lengths_m = sorted({r["job"]["fixed_m"] for r in results})
     bin_of = {id(s): int(np.clip(np.searchsorted(edges, x, side="right") - 1, 0, bins - 1)) for s, x in zip(rows, v)}
 
@@ -114,7 +120,7 @@ def analyse(results: list[dict[str, Any]], bins: int, by: str = "stance") -> dic
         "walks": len(results), "walks_per_length": len(results) // max(len(lengths_m), 1), "lengths_m": lengths_m,
         "bins": bins, "bin_by": by, "swings": len(rows), "clamped_stick_goals": clamps,
         # every swing's X_CoM/X_SP both ways and intention, and how well each ratio follows the intention
-        **{f"{key}_spread": _quantiles(np.array([x for s in every if math.isfinite(x := _value(s, key))])) for key in BIN_BY},
+        **{f"{key}_spread": quantiles(np.array([x for s in every if math.isfinite(x := _value(s, key))])) for key in BIN_BY},
         "spearman_intention": {key: _spearman([(s.intention_m, _value(s, key)) for s in every
                                                if math.isfinite(s.intention_m) and math.isfinite(_value(s, key))])
                                for key in ("planted", "stance")},
@@ -137,30 +143,43 @@ def csv_rows(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
              "ended_after": s.ended_after, "end": s.end} for s in swings(results)]
 
 
+#: the heat maps: (cell key, title, colour map, scale to the shown unit)
+GRIDS = (("falls_per_step", "falls per step (%)", "Reds", 100.0), ("stick_force_n", "mean stick force (N)", "viridis", 1.0))
+
+
+def draw_grid(fig, axis, s: dict[str, Any], key: str, title: str, cmap: str, scale: float) -> None:
+    """One of :data:`GRIDS` of the summary ``s`` on ``axis`` in real units (X_CoM/X_SP bins as wide
+    as they are, step lengths in m, so lines g(X) can be drawn over it), the best step of each bin
+    circled."""
+    lengths_m, bins = s["lengths_m"], s["bins"]
+    grid = {(e["length_m"], e["bin"]): e for e in s["cells"]}
+    m = np.array([[np.nan if grid[(length, j)][key] is None else scale * grid[(length, j)][key] for j in range(bins)]
+                  for length in lengths_m])
+    x_edges = [e["from"] for e in s["best"]] + [s["best"][-1]["to"]]
+    half = (lengths_m[1] - lengths_m[0]) / 2 if len(lengths_m) > 1 else 0.01
+    y_edges = [v - half for v in lengths_m] + [lengths_m[-1] + half]
+    image = axis.pcolormesh(x_edges, y_edges, np.ma.masked_invalid(m), cmap=cmap)
+    fig.colorbar(image, ax=axis)
+    centres = [(a + b) / 2 for a, b in zip(x_edges, x_edges[1:])]
+    for i, length in enumerate(lengths_m):
+        for j in range(bins):
+            if np.isfinite(m[i, j]):
+                axis.text(centres[j], length, f"{m[i, j]:.0f}", ha="center", va="center", fontsize=7,
+                          color="w" if key == "stick_force_n" else "k")
+    marks = [(centres[e["bin"]], e["best_length_m"]) for e in s["best"] if e["best_length_m"] is not None]
+    if marks:  # the best step of a bin: fall-free, least force
+        axis.plot(*zip(*marks), "o", mfc="none", mec="tab:cyan", mew=2, ms=14)
+    axis.set_yticks(lengths_m, [f"{v:.2f}" for v in lengths_m])
+    axis.set(xlabel=f"{BIN_BY[s['bin_by']]} at the swing's start (bins)", ylabel="step length (m)", title=title)
+
+
 def figure(results: list[dict[str, Any]], s: dict[str, Any], path, canvas, save) -> None:
     """(a) falls per step and (b) mean stick force per (fixed length, bin), the best step of each
     bin marked; (c) X_CoM/X_SP at each swing's start, both ways, against the patient's intention."""
     fig, ax = canvas(1, 3, (15, 4.8))
     a, b, c = ax[0]
-    lengths_m, bins = s["lengths_m"], s["bins"]
-    grid = {(e["length_m"], e["bin"]): e for e in s["cells"]}
-    labels = [f"{e['from']:.2f}-{e['to']:.2f}" for e in s["best"]]
-    for axis, key, title, cmap, scale in ((a, "falls_per_step", "(a) falls per step (%); o: best step", "Reds", 100.0),
-                                          (b, "stick_force_n", "(b) mean stick force (N); o: best step", "viridis", 1.0)):
-        m = np.array([[np.nan if grid[(length, j)][key] is None else scale * grid[(length, j)][key] for j in range(bins)]
-                      for length in lengths_m])
-        image = axis.imshow(m, origin="lower", aspect="auto", cmap=cmap)
-        fig.colorbar(image, ax=axis)
-        for i in range(len(lengths_m)):
-            for j in range(bins):
-                if np.isfinite(m[i, j]):
-                    axis.text(j, i, f"{m[i, j]:.0f}", ha="center", va="center", fontsize=7, color="w" if key == "stick_force_n" else "k")
-        marks = [(e["bin"], lengths_m.index(e["best_length_m"])) for e in s["best"] if e["best_length_m"] is not None]
-        if marks:  # the best step of a bin: fall-free, least force
-            axis.plot(*zip(*marks), "o", mfc="none", mec="tab:cyan", mew=2, ms=14)
-        axis.set_xticks(range(bins), labels, fontsize=8)
-        axis.set_yticks(range(len(lengths_m)), [f"{v:.2f}" for v in lengths_m])
-        axis.set(xlabel=f"{BIN_BY[s['bin_by']]} at the swing's start (bin)", ylabel="fixed step length (m)", title=title)
+    for axis, (key, title, cmap, scale), letter in zip((a, b), GRIDS, "ab"):
+        draw_grid(fig, axis, s, key, f"({letter}) {title}; o: best step", cmap, scale)
     rows = [r for r in swings(results) if math.isfinite(r.intention_m)]
     for key, colour in (("planted", "tab:blue"), ("stance", "tab:green")):
         pts = [(r.intention_m, _value(r, key), r.ended or r.ended_after) for r in rows if math.isfinite(_value(r, key))]

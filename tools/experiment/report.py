@@ -7,14 +7,18 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from controller.factory import step_bounds
 from tools.experiment.compare import ADAPTIVE
-from tools.experiment.experiment import Results, comparison_checks, learning_checks
+from tools.experiment.experiment import (CHEAPER_FALLS_SHARE, LINE_AGREEMENT_M, X_SPREAD_RANGE, X_SPREAD_STD, Results,
+                                         comparison_checks, learning_checks, step_line)
+from tools.experiment.falls import swings
 
 #: the paper's figures (section IV), for the report
 PAPER = {
@@ -25,6 +29,8 @@ PAPER = {
     "force": "the adaptive gait's stick pressure about as low as a fixed 0.20 m step, which falls within 6 of 10 steps (Fig. 12)",
 }
 COLORS = {"A": "tab:blue", "B": "tab:orange"}
+#: X_CoM/X_SP bins of the step figures (as ``experiment intention``'s default)
+HEAT_BINS = 4
 
 
 def _write(path: Path, text: str | bytes) -> None:
@@ -54,7 +60,7 @@ def summary(res: Results) -> dict[str, Any]:
         "workers": plan.workers,
     }
     if res.learning:
-        out["learning"] = {"runs": [r.as_dict() for r in res.learning], "checks": learning_checks(res.learning, n, plan.updates)}
+        out["learning"] = {"runs": [r.as_dict() for r in res.learning], "checks": learning_checks(res.learning, n, step_bounds(plan.cfg.controller), plan.updates)}
     if res.comparison:
         out["comparison"] = {"theta": list(res.compare_theta) if res.compare_theta else None,
                              "gaits": [g.summary(n) for g in res.comparison],
@@ -91,6 +97,7 @@ def write_all(res: Results, out: Path) -> dict[str, Any]:
              "mean_arm_torque_nm": w["mean_arm_torque_nm"]}
             for g in res.comparison for w in g.walks]))
         _figure_compare(res, out / "fig8-12-compare.png")
+        _figure_lines(res, out / "step-lines.png")
     _write(out / "summary.json", json.dumps(s, indent=2) + "\n")
     _write(out / "report.md", report(s))
     return s
@@ -151,6 +158,19 @@ def _save(fig, path: Path) -> None:
     _write(path, buf.getvalue())
 
 
+def _colormap(name: str, n: int):
+    from matplotlib import colormaps
+
+    return colormaps[name].resampled(n)
+
+
+def _scalar_mappable(cmap, n: int):
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    return ScalarMappable(norm=Normalize(-0.5, n - 0.5), cmap=cmap)
+
+
 def _by_start(res: Results) -> dict[str, list]:
     out: dict[str, list] = {}
     for r in res.learning:
@@ -190,20 +210,64 @@ def _figure_learning(res: Results, path: Path) -> None:
 
 
 def _figure_steps(res: Results, path: Path) -> None:
-    """The analogue of the paper's Fig. 11: the mean stick force of every step while learning."""
-    fig, ax = _canvas(1, 1, (11, 4))
+    """The analogue of the paper's Fig. 11: the mean stick force of every step while learning, one
+    panel per start, each step coloured by its X_CoM/X_SP bin (bins of equal counts over every
+    learning step), and a running mean per run."""
+    from tools.experiment.intention import bin_edges
+
+    by_start = _by_start(res)
+    fig, ax = _canvas(len(by_start), 1, (11, 3.2 * len(by_start)))
     window = 50
-    for r in res.learning:
-        f = np.array([s[3] for s in _learning_steps(r)])
-        ax[0, 0].plot(np.arange(len(f)), f, color=COLORS.get(r.start), alpha=0.15, lw=0.6)
-        if len(f) >= window:
-            smooth = np.convolve(f, np.ones(window) / window, mode="valid")
-            ax[0, 0].plot(np.arange(window - 1, len(f)), smooth, color=COLORS.get(r.start), lw=1.5, label=f"{r.start} seed {r.seed}")
-    ax[0, 0].set(title=f"Mean stick force of every step over the learning runs (thin), and over the last {window} steps",
-                 xlabel="step (all roll-outs in order)", ylabel="stick force (N)")
-    ax[0, 0].grid(alpha=0.3)
-    if ax[0, 0].get_legend_handles_labels()[0]:  # runs shorter than the window have no running mean
-        ax[0, 0].legend(fontsize=8)
+    steps = {r.name: np.array(_learning_steps(r), dtype=float).reshape(-1, 4) for r in res.learning}
+    x_all = np.concatenate([v[:, 2] for v in steps.values()])
+    edges = bin_edges(x_all[np.isfinite(x_all)], HEAT_BINS)
+    cmap = _colormap("viridis", HEAT_BINS)
+    for a, (start, runs) in zip(ax[:, 0], by_start.items()):
+        for r in runs:
+            f, x = steps[r.name][:, 3], steps[r.name][:, 2]
+            a.scatter(np.arange(len(f)), f, c=np.searchsorted(edges[1:-1], x, side="right"), cmap=cmap, vmin=-0.5,
+                      vmax=HEAT_BINS - 0.5, s=4, alpha=0.6, lw=0)
+            if len(f) >= window:
+                smooth = np.convolve(f, np.ones(window) / window, mode="valid")
+                a.plot(np.arange(window - 1, len(f)), smooth, color=COLORS.get(start), lw=1.5, label=f"{r.name}: mean of the last {window}")
+        a.set(title=f"start {start}: mean stick force of every step over the learning runs", ylabel="stick force (N)")
+        a.grid(alpha=0.3)
+        if a.get_legend_handles_labels()[0]:  # runs shorter than the window have no running mean
+            a.legend(fontsize=8, loc="upper right")
+    ax[-1, 0].set(xlabel="step (all roll-outs in order)")
+    bar = fig.colorbar(_scalar_mappable(cmap, HEAT_BINS), ax=ax[:, 0], ticks=range(HEAT_BINS))
+    bar.ax.set_yticklabels([f"{lo:.2f}-{hi:.2f}" for lo, hi in zip(edges, edges[1:])])
+    bar.set_label("X_CoM/X_SP at the swing's start (bin)")
+    _save(fig, path)
+
+
+def _figure_lines(res: Results, path: Path) -> None:
+    """Why the learned step is where it is: the learned step-length lines g(X) (each run's deployed
+    theta, after the clamp) and the compared adaptive gait's own steps over the comparison's
+    fixed-length walks binned by X_CoM/X_SP as ``experiment intention`` bins them."""
+    from tools.experiment import intention
+
+    fixed = [w for g in res.comparison if g.fixed_m is not None for w in g.walks]
+    s = intention.analyse(fixed, HEAT_BINS)
+    if not s["swings"]:
+        return
+    bounds = step_bounds(res.plan.cfg.controller)
+    x = np.linspace(s["best"][0]["from"], s["best"][-1]["to"], 100)
+    adaptive = next(g for g in res.comparison if g.gait == ADAPTIVE)
+    steps = np.array([(sw.x_ratio, sw.length_m) for sw in swings(adaptive.walks) if math.isfinite(sw.x_ratio)]).reshape(-1, 2)
+    fig, ax = _canvas(1, 2, (14, 5))
+    for a, (key, title, cmap, scale), letter in zip(ax[0], intention.GRIDS, "ab"):
+        intention.draw_grid(fig, a, s, key, f"({letter}) fixed lengths: {title}; o: best step", cmap, scale)
+        for i, r in enumerate(res.learning):
+            a.plot(x, step_line(bounds, r.final.evaluation_theta, x), color=COLORS.get(r.start), lw=1.5,
+                   ls=("-", "--", ":", "-.")[r.seed % 4], label=f"learned {r.name}")
+        a.scatter(steps[:, 0], steps[:, 1], s=8, c="tab:green", edgecolors="k", linewidths=0.3, label="the adaptive gait's steps")
+        a.plot(x, step_line(bounds, res.compare_theta, x), color="tab:green", lw=2, label="the compared theta")
+        a.set_xlim(x[0], x[-1])
+    ax[0, 0].legend(fontsize=7, loc="lower right")
+    th = res.compare_theta
+    fig.suptitle(f"Step length against X_CoM/X_SP: learned lines over {len(fixed)} fixed-length walks "
+                 f"(adaptive theta alpha {th[0]:.3f}, Xhat {th[1]:.3f})")
     _save(fig, path)
 
 
@@ -255,7 +319,8 @@ def report(s: dict[str, Any]) -> str:
                          f"({c['final_theta'][0]:.3f}, {c['final_theta'][1]:.3f}) | {c['final_cycles']} | {c['first_full_at_update'] or '-'} |")
         lines += ["", "| claim | paper | here |", "|---|---|---|",
                   f"| noise-free cost falls | {PAPER['cost']} | cut by 30 % or more by the last update: {_count(checks, 'cost_cut_30_percent')} |",
-                  f"| A and B end at the same theta (within 10 %) | {PAPER['optimum']} | {_seeds_same(checks)} |",
+                  f"| A and B end at the same theta (within 10 %), or their step-length lines agree within "
+                  f"{LINE_AGREEMENT_M} m at the 10th, 50th and 90th percentile of X_CoM/X_SP | {PAPER['optimum']} | {_seeds_same(checks)} |",
                   f"| stable steps reach 10 of 10 | {PAPER['stable']} | the last noise-free walk walks them all: {_count(checks, 'reaches_full_cycles')} |", ""]
     if "comparison" in s:
         c = s["comparison"]
@@ -268,13 +333,25 @@ def report(s: dict[str, Any]) -> str:
                          f"{g['falls']}/{g['walks']} | {_f(g['stick_force_mean_n'], 1)} ± {_f(g['stick_force_std_n'], 1)} | "
                          f"{_f(g['arm_torque_mean_nm'], 1)} ± {_f(g['arm_torque_std_nm'], 1)} |")
         ch = c["checks"]
+        adaptive = next(g for g in c["gaits"] if g["gait"] == ADAPTIVE)
         lines += ["", "| claim | paper | here |", "|---|---|---|",
                   f"| adaptive stick force below every fixed length that does not fall | {PAPER['force']} | "
                   f"{_yes(ch['adaptive_force_below_every_non_falling_fixed'])} (non-falling fixed: {', '.join(ch['non_falling_fixed']) or 'none'}) |",
                   f"| the too-long fixed length falls within 6 cycles, the adaptive walks 10 of 10 | {PAPER['force']} | "
                   f"{ch['longest_fixed']} m: {_yes(ch['longest_fixed_falls_within_6_cycles'])}; adaptive: {_yes(ch['adaptive_walks_full'])} |",
-                  f"| upper-body torque | {PAPER['torque']} | {_yes(ch['adaptive_torque_below_every_fixed'])} |", ""]
+                  f"| every fixed length cheaper than the adaptive gait falls in {CHEAPER_FALLS_SHARE:.0%} of its walks | {PAPER['force']} | "
+                  f"{_yes(ch['every_cheaper_fixed_falls'])} (cheaper: {', '.join(ch['cheaper_fixed']) or 'none'}) |",
+                  f"| upper-body torque | {PAPER['torque']} | {_yes(ch['adaptive_torque_below_every_fixed'])} |", "",
+                  f"X_CoM/X_SP at the swings' start over every compared walk: {_spread(ch['x_ratio'])} "
+                  f"(asked: sd >= {X_SPREAD_STD}, 10th-90th percentile range >= {X_SPREAD_RANGE}: {_yes(ch['x_ratio_spreads'])}); "
+                  f"the adaptive step lengths {_f(adaptive['step_length_mean_m'], 3)} ± {_f(adaptive['step_length_std_m'], 4)} m.", ""]
     return "\n".join(lines)
+
+
+def _spread(x: dict[str, Any]) -> str:
+    if not x["swings"]:
+        return "no swings"
+    return f"sd {x['std']:.3f}, 10th-90th percentile {x['p10']:.3f}-{x['p90']:.3f} (range {x['range_p10_p90']:.3f}) over {x['swings']} swings"
 
 
 def _count(checks: dict[str, Any], key: str) -> str:
@@ -297,5 +374,6 @@ def _yes(b: bool) -> str:
 def _seeds_same(checks: dict[str, Any]) -> str:
     if not checks["seeds"]:
         return "(needs both starts)"
-    return "; ".join(f"seed {k}: {_yes(v['same_within_10_percent'])} (differences {v['relative_difference']})"
-                     for k, v in checks["seeds"].items())
+    return "; ".join(f"seed {k}: theta {_yes(v['same_within_10_percent'])} (differences {v['relative_difference']}), "
+                     f"lines {_yes(v['lines']['agree'])} (at X {v['lines']['x_percentiles']}: A {v['lines']['length_A_m']} m, "
+                     f"B {v['lines']['length_B_m']} m)" for k, v in checks["seeds"].items())
