@@ -67,9 +67,18 @@ def _value(s: Swing, by: str) -> float:
     return {"stance": s.x_ratio, "planted": s.x_ratio_planted, "intention": s.intention_m}[by]
 
 
+#: X_CoM/X_SP bins of the heat maps (equal counts), unless told otherwise
+DEFAULT_BINS = 4
+
+
 def bin_edges(v: np.ndarray, bins: int) -> np.ndarray:
     """The edges of ``bins`` bins of equal counts over ``v`` (all zero when it is empty)."""
     return np.percentile(v, np.linspace(0, 100, bins + 1)) if len(v) else np.zeros(bins + 1)
+
+
+def bin_index(edges: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The bin (0 .. len(edges) - 2) of each value of ``v``; values beyond the edges go to the end bins."""
+    return np.clip(np.searchsorted(edges, v, side="right") - 1, 0, len(edges) - 2)
 
 
 def analyse(results: list[dict[str, Any]], bins: int, by: str = "stance") -> dict[str, Any]:
@@ -80,7 +89,7 @@ def analyse(results: list[dict[str, Any]], bins: int, by: str = "stance") -> dic
     v = np.array([_value(s, by) for s in rows])
     edges = bin_edges(v, bins)
     lengths_m = sorted({r["job"]["fixed_m"] for r in results})
-    bin_of = {id(s): int(np.clip(np.searchsorted(edges, x, side="right") - 1, 0, bins - 1)) for s, x in zip(rows, v)}
+    bin_of = {id(s): int(b) for s, b in zip(rows, bin_index(edges, v))}
 
     cells = []
     for length in lengths_m:

@@ -29,8 +29,6 @@ PAPER = {
     "force": "the adaptive gait's stick pressure about as low as a fixed 0.20 m step, which falls within 6 of 10 steps (Fig. 12)",
 }
 COLORS = {"A": "tab:blue", "B": "tab:orange"}
-#: X_CoM/X_SP bins of the step figures (as ``experiment intention``'s default)
-HEAT_BINS = 4
 
 
 def _write(path: Path, text: str | bytes) -> None:
@@ -213,20 +211,20 @@ def _figure_steps(res: Results, path: Path) -> None:
     """The analogue of the paper's Fig. 11: the mean stick force of every step while learning, one
     panel per start, each step coloured by its X_CoM/X_SP bin (bins of equal counts over every
     learning step), and a running mean per run."""
-    from tools.experiment.intention import bin_edges
+    from tools.experiment.intention import DEFAULT_BINS, bin_edges, bin_index
 
     by_start = _by_start(res)
     fig, ax = _canvas(len(by_start), 1, (11, 3.2 * len(by_start)))
     window = 50
     steps = {r.name: np.array(_learning_steps(r), dtype=float).reshape(-1, 4) for r in res.learning}
     x_all = np.concatenate([v[:, 2] for v in steps.values()])
-    edges = bin_edges(x_all[np.isfinite(x_all)], HEAT_BINS)
-    cmap = _colormap("viridis", HEAT_BINS)
+    edges = bin_edges(x_all[np.isfinite(x_all)], DEFAULT_BINS)
+    cmap = _colormap("viridis", DEFAULT_BINS)
     for a, (start, runs) in zip(ax[:, 0], by_start.items()):
         for r in runs:
             f, x = steps[r.name][:, 3], steps[r.name][:, 2]
-            a.scatter(np.arange(len(f)), f, c=np.searchsorted(edges[1:-1], x, side="right"), cmap=cmap, vmin=-0.5,
-                      vmax=HEAT_BINS - 0.5, s=4, alpha=0.6, lw=0)
+            a.scatter(np.arange(len(f)), f, c=bin_index(edges, x), cmap=cmap, vmin=-0.5,
+                      vmax=DEFAULT_BINS - 0.5, s=4, alpha=0.6, lw=0)
             if len(f) >= window:
                 smooth = np.convolve(f, np.ones(window) / window, mode="valid")
                 a.plot(np.arange(window - 1, len(f)), smooth, color=COLORS.get(start), lw=1.5, label=f"{r.name}: mean of the last {window}")
@@ -235,7 +233,7 @@ def _figure_steps(res: Results, path: Path) -> None:
         if a.get_legend_handles_labels()[0]:  # runs shorter than the window have no running mean
             a.legend(fontsize=8, loc="upper right")
     ax[-1, 0].set(xlabel="step (all roll-outs in order)")
-    bar = fig.colorbar(_scalar_mappable(cmap, HEAT_BINS), ax=ax[:, 0], ticks=range(HEAT_BINS))
+    bar = fig.colorbar(_scalar_mappable(cmap, DEFAULT_BINS), ax=ax[:, 0], ticks=range(DEFAULT_BINS))
     bar.ax.set_yticklabels([f"{lo:.2f}-{hi:.2f}" for lo, hi in zip(edges, edges[1:])])
     bar.set_label("X_CoM/X_SP at the swing's start (bin)")
     _save(fig, path)
@@ -248,7 +246,7 @@ def _figure_lines(res: Results, path: Path) -> None:
     from tools.experiment import intention
 
     fixed = [w for g in res.comparison if g.fixed_m is not None for w in g.walks]
-    s = intention.analyse(fixed, HEAT_BINS)
+    s = intention.analyse(fixed, intention.DEFAULT_BINS)
     if not s["swings"]:
         return
     bounds = step_bounds(res.plan.cfg.controller)
@@ -258,7 +256,7 @@ def _figure_lines(res: Results, path: Path) -> None:
     fig, ax = _canvas(1, 2, (14, 5))
     for a, (key, title, cmap, scale), letter in zip(ax[0], intention.GRIDS, "ab"):
         intention.draw_grid(fig, a, s, key, f"({letter}) fixed lengths: {title}; o: best step", cmap, scale)
-        for i, r in enumerate(res.learning):
+        for r in res.learning:
             a.plot(x, step_line(bounds, r.final.evaluation_theta, x), color=COLORS.get(r.start), lw=1.5,
                    ls=("-", "--", ":", "-.")[r.seed % 4], label=f"learned {r.name}")
         a.scatter(steps[:, 0], steps[:, 1], s=8, c="tab:green", edgecolors="k", linewidths=0.3, label="the adaptive gait's steps")
