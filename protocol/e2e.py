@@ -7,7 +7,8 @@ configurable ``max_delta_counter``), and counts every rejection by reason. It ne
 
 Counter rule for a frame whose CRC is good, with ``delta = (counter - last) mod 16``:
 
-* first frame of a message (or after :meth:`Receiver.reset`): accepted;
+* first frame of a message (or after :meth:`Receiver.reset`, or after its sender restarted: a
+  node's boot-up heartbeat or the controller's SYNC of tick 0, each with counter 0): accepted;
 * ``delta == 0``: rejected, ``REPEATED`` (a duplicate or a frozen sender);
 * ``1 <= delta <= max_delta_counter``: accepted; ``delta - 1`` frames were lost (counted);
 * ``delta > max_delta_counter``: rejected, ``WRONG_SEQUENCE`` (too many lost, or reordered);
@@ -106,7 +107,7 @@ class Receiver:
             if result == -1:
                 return self._reject(self.codec.rejection(compiled, -1, frame_id)._replace(timestamp=timestamp))
             counter = data[1] & 0xF
-            if counter == 0 and _boot_up(compiled.spec, result):
+            if counter == 0 and _sender_started(compiled.spec, result):
                 self._restart(compiled.spec.sender)
             last = self._last.get(frame_id)
             if last is not None:
@@ -132,11 +133,17 @@ class Receiver:
             return self._reject(Rejection(RejectReason.DECODER_FAULT, fid, repr(exc), timestamp=timestamp))
 
 
-def _boot_up(spec: MessageSpec, values: Any) -> bool:
-    """Whether a frame (with counter 0) is a node's boot-up heartbeat (NMT state BOOT_UP): its
-    sender restarted, and every counter of its messages with it (FAULTS.md F23). ``values`` is an
-    int when a signal is out of range (rejected after the counter check): no boot-up then."""
-    return spec.family == "HEARTBEAT" and type(values) is not int and values.nmt_state == NmtState.BOOT_UP
+def _sender_started(spec: MessageSpec, values: Any) -> bool:
+    """Whether a frame (with counter 0) is the first of a sender that (re)started, and every
+    counter of its messages with it: a node's boot-up heartbeat (NMT state BOOT_UP, FAULTS.md F23)
+    or the controller's first SYNC (tick 0; a restarted controller's first NMT command, counter 0
+    again, was otherwise rejected as a repeat of the last one's, F22). ``values`` is an int when a
+    signal is out of range (rejected after the counter check): no start then."""
+    if type(values) is int:
+        return False
+    if spec.family == "HEARTBEAT":
+        return values.nmt_state == NmtState.BOOT_UP
+    return spec.family == "SYNC" and values.tick == 0
 
 
 class Transmitter:

@@ -92,6 +92,23 @@ def test_a_boot_up_heartbeat_restarts_its_senders_sequence_and_nothing_else_does
     assert rx.receive_data(hb.frame_id, CODEC.encode(hb, (NmtState.BOOT_UP, 24.0), 9)).reason is RejectReason.WRONG_SEQUENCE
 
 
+def test_the_controllers_first_sync_restarts_its_sequence():
+    # F22: a restarted controller's counters start again at 0; its first NMT command (the operator's
+    # FAULT_RESET) has counter 0 like the last controller's only one had, and was lost as a repeat
+    sync, nmt = CODEC.spec("SYNC"), CODEC.spec("NMT_COMMAND")
+    rx = Receiver(CODEC, max_delta_counter=3)
+    for tick in range(20):
+        assert isinstance(rx.receive_data(sync.frame_id, CODEC.encode(sync, (tick,), tick % 16)), Decoded)
+    assert isinstance(rx.receive_data(nmt.frame_id, CODEC.encode(nmt, (1, 0), 0)), Decoded)  # START
+    assert rx.receive_data(nmt.frame_id, CODEC.encode(nmt, (130, 0), 0)).reason is RejectReason.REPEATED
+    assert isinstance(rx.receive_data(sync.frame_id, CODEC.encode(sync, (0,), 0)), Decoded)  # a new controller
+    assert isinstance(rx.receive_data(nmt.frame_id, CODEC.encode(nmt, (130, 0), 0)), Decoded)  # FAULT_RESET
+    # only tick 0 with counter 0: a SYNC of another tick, or tick 0 out of sequence, is no start
+    assert isinstance(rx.receive_data(sync.frame_id, CODEC.encode(sync, (1,), 1)), Decoded)
+    assert rx.receive_data(sync.frame_id, CODEC.encode(sync, (5,), 0)).reason is RejectReason.WRONG_SEQUENCE
+    assert rx.receive_data(sync.frame_id, CODEC.encode(sync, (0,), 9)).reason is RejectReason.WRONG_SEQUENCE
+
+
 @pytest.mark.parametrize(
     "msg, reason",
     [

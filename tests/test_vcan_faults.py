@@ -549,7 +549,8 @@ def test_restarted_controller_leaves_fault_only_on_the_operators_reset_and_does_
     emcys = [(t, d.message.sender, EmcyCode(d.values.emcy_code).name) for t, d in zip(ticks, decoded) if d.message.family == "EMCY"]
     assert [(a, b) for _, a, b, _ in transitions[:2]] == [("INIT", "FAULT"), ("FAULT", "STAND")], (
         transitions, s["resets"], f"last stick forces {sticks} (I4 resets only with both sticks loaded)",
-        f"EMCYs (SYNC tick, node, code) {emcys}", f"stalls (tick, ms) {s['stalls']}", r["reset_retried"])
+        f"EMCYs (SYNC tick, node, code) {emcys}", f"stalls (tick, ms) {s['stalls']}", r["reset_retried"],
+        f"fault causes {s['fault_causes']}")
     assert transitions[0][3].startswith("DRIVE_FAULT(") and transitions[1][3] == "operator reset"
     assert len(s["resets"]) == 2, s["resets"]  # the nodes' FAULT_RESET, then the FSM's reset once they were healthy
     first_reset, fsm_reset = s["resets"]

@@ -148,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
         "mode": "lockstep" if args.lockstep else "realtime",
         "ticks": loop.report.ticks,
         "final_state": result.state.name if result else None,
+        "fault_causes": list(core.fsm.fault_causes),  # every cause seen while FAULT is latched (the first announced)
         "timeouts": loop.report.timeouts,
         "frames_sent": loop.report.frames_sent,
         "send_failures": loop.report.send_failures,
