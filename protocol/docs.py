@@ -132,7 +132,8 @@ def markdown(catalog: Catalog) -> str:
         f"- Bits 8..11 are `{COUNTER_SIGNAL}`, the alive counter: +1 modulo 16 per frame of that message."
         " A receiver rejects a repeated counter (duplicate or frozen sender) and a jump beyond"
         " `protocol.max_delta_counter` (lost or reordered frames); smaller gaps are accepted and counted as"
-        " lost frames.",
+        " lost frames. A sender's restart starts its counters again: a node's boot-up heartbeat and the"
+        " controller's SYNC of tick 0, each with counter 0, make the next frame of each of its messages a first one.",
         "- Payload signals start at bit 12. Every signal has a physical range (DBC `[min|max]`); a received"
         " value outside it, or an enumerated value that is not listed, rejects the frame.",
         "- Cyclic messages follow the controller tick (20 ms): the controller sends SYNC with the tick number"
