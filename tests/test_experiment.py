@@ -201,6 +201,10 @@ def test_comparison_checks_follow_the_done_when_rules():
     assert c["non_falling_fixed"] == ["0.10", "0.12"]
     assert c["cheaper_fixed"] == ["0.20"] and c["every_cheaper_fixed_falls"]
     assert not comparison_checks(gaits(59.0, 2), 10)["adaptive_force_below_every_non_falling_fixed"]
+    # every fixed length falls (the noisy patient): none to beat on force, the adaptive walks on
+    all_fall = [gaits(55.0, 2)[0], GaitStats("0.10", None, 0.10, [_walk(s, 3, 50.0, True) for s in range(3)])]
+    c = comparison_checks(all_fall, 10)
+    assert c["non_falling_fixed"] == [] and c["adaptive_force_below_every_non_falling_fixed"]
     assert not comparison_checks(gaits(55.0, 7), 10)["longest_fixed_falls_within_6_cycles"]
     # a cheaper fixed length that falls in 0 of 3 walks (below 30 %) is one the adaptive gait should beat
     assert not comparison_checks(gaits(55.0, 2, long_falls=0), 10)["every_cheaper_fixed_falls"]
