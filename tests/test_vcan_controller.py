@@ -287,16 +287,14 @@ def test_controller_walks_five_gait_cycles_in_real_time_as_two_processes(interfa
     real-time gait defect of docs/CONTROLLER.md): the controller read three of the four nodes a
     tick late, as if on time, for the whole walk, after their first answers came late."""
     channel = request.getfixturevalue("vcan0" if interface == "socketcan" else "udp_multicast")
-    # The steady patient: this test is of the real-time transport. With the noisy one (the
-    # default) a real-time walk once waited for good in a double support (1 of about 8 walks on
-    # 2026-12-05, a stick moved 0.03 m that the controller did not see: lock-step seed 39 did the
-    # same, mended since by the patient's least stick move of 0.05 m, docs/SIM.md item 20; the
-    # noisy patient's real-time walks are yet to be shown as reliable).
-    steady = _steady_patient_config(tmp_path)
+    # The default (noisy) patient. Pinned to the steady one from 2026-12-05 (a real-time walk had
+    # waited for good in a double support, 1 of about 8: a stick moved 0.03 m that the controller
+    # did not see, mended since by the patient's least stick move of 0.05 m, docs/SIM.md item 20);
+    # on 2026-12-06 18 real-time UDP walks of 5 cycles of the noisy patient on the host walked them.
     stalled = []
     for attempt in range(1, RT_ATTEMPTS + 1):
         log = tmp_path / f"capture-{attempt}.log"
-        summary, final = _walk_two_processes(interface, channel, log, RT_CYCLES, lockstep=False, config=steady)
+        summary, final = _walk_two_processes(interface, channel, log, RT_CYCLES, lockstep=False)
         assert summary["mode"] == "realtime" and final["mode"] == "realtime"
         _check_capture(log, summary)  # whatever happened, what is on the bus is whole and in order
         stops = [t for t in _transitions(summary["events"]) if t[2] in ("FAULT", "HOLD")]
