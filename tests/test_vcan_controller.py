@@ -39,10 +39,7 @@ from pathlib import Path
 
 import can
 import pytest
-import yaml
 
-from config import default_config_path, load_config, with_overrides
-from config.loader import config_to_dict
 from controller.loop import READ_WINDOW_S
 from protocol.catalog import TICK_MS
 from protocol.clock import MonotonicClock
@@ -129,15 +126,6 @@ def udp_record(channel: str, path: Path) -> Iterator[None]:
 
 def _recording(interface: str, channel: str, log: Path):
     return candump(channel, log) if interface == "socketcan" else udp_record(channel, log)
-
-
-def _steady_patient_config(folder: Path) -> Path:
-    """The default configuration with the steady patient (one stick placement every step), as a
-    file for both processes."""
-    cfg = with_overrides(load_config(default_config_path()), {"sim.patient.intention.regime": "steady"})
-    path = folder / "steady-patient.yaml"
-    path.write_text(yaml.safe_dump(config_to_dict(cfg), sort_keys=False), encoding="utf-8")
-    return path
 
 
 def _walk_two_processes(interface: str, channel: str, log: Path, cycles: int, *, lockstep: bool,

@@ -41,15 +41,17 @@ from pathlib import Path
 
 import can
 import pytest
+import yaml
 
-from config import default_config_path, load_config
+from config import default_config_path, load_config, with_overrides
+from config.loader import config_to_dict
 from protocol.catalog import TICK_MS
 from protocol.clock import MonotonicClock
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver
 from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
 from tests.conftest import ROOT
-from tests.test_vcan_controller import AIDER, STALL_STOPS, _decode_capture, _recorded, _steady_patient_config, _transitions
+from tests.test_vcan_controller import AIDER, STALL_STOPS, _decode_capture, _recorded, _transitions
 from tests.test_vcan_trace import PROBE_ID, candump
 
 pytestmark = pytest.mark.vcan
@@ -224,6 +226,15 @@ def _why(ctl: subprocess.Popen) -> list[str]:
         return [e for e in json.loads(out)["events"] if "-> HOLD" in e or "-> FAULT" in e]
     except (ValueError, KeyError):
         return [f"no summary (exit status {ctl.returncode})"]
+
+
+def _steady_patient_config(folder: Path) -> Path:
+    """The default configuration with the steady patient (one stick placement every step), as a
+    file for the nodes process."""
+    cfg = with_overrides(load_config(default_config_path()), {"sim.patient.intention.regime": "steady"})
+    path = folder / "steady-patient.yaml"
+    path.write_text(yaml.safe_dump(config_to_dict(cfg), sort_keys=False), encoding="utf-8")
+    return path
 
 
 @contextmanager
