@@ -73,6 +73,24 @@ class BoundClient(BulletClient):
         return attribute
 
 
+class PhysicsTimer:
+    """Accumulates the time of PyBullet's own ``stepSimulation`` in ``world`` (benchmarks and
+    profiles): the bare physics measured inside the same run as everything around it. ``clock``
+    has ``now_ns()`` (:class:`protocol.clock.MonotonicClock`). In a profile, ``physics_step`` is
+    the physics' own entry (PyBullet's other C functions are called through ``functools.partial``,
+    which a profiler attributes to their Python caller)."""
+
+    def __init__(self, world: World, clock) -> None:
+        self.ns = 0
+        self._inner, self._clock = world.client.stepSimulation, clock
+        world.client.stepSimulation = self.physics_step  # an instance attribute shadows the client's lookup
+
+    def physics_step(self) -> None:
+        start = self._clock.now_ns()
+        self._inner()
+        self.ns += self._clock.now_ns() - start
+
+
 @dataclass(frozen=True)
 class StancePose:
     """An initial posture: where the feet and stick tips are, and how the trunk leans."""

@@ -197,14 +197,34 @@ def test_the_controller_benchmark_runs_the_real_pipeline():
 
     from tools.bench import controller as bench
 
-    result = bench.run(argparse.Namespace(config=None, cycles=1, realtime_cycles=1, max_ticks=60))
+    result = bench.run(argparse.Namespace(config=None, cycles=1, realtime_cycles=1, max_ticks=60, repeats=2))
     ls, rt = result["lockstep"], result["realtime"]
     assert ls["walk"]["ticks"] == 60 and rt["walk"]["ticks"] == 60 and result["plain_sleep_loop"]["ticks"] == 60
     assert ls["walk"]["walking_ticks"] > 0 and ls["walk"]["final_state"] in bench.WALKING  # the figures are from walking
     assert ls["physics_ticks"] == 60 and ls["controller_work_us"]["max"] > 0 and ls["pipeline_to_bare_sim"] > 0
+    assert 0 < ls["pipeline_to_bare_physics"] < ls["pipeline_to_bare_sim"]  # the physics is part of the simulation's tick
     assert rt["walk"]["fault"] is None and rt["wakeup_lateness"]["max_us"] >= rt["wakeup_lateness"]["p99_us"]
     text = bench.format_text(result)
     assert "controller work per tick, p99" in text and "plain sleep loop" in text
+
+
+def test_the_profile_ranks_a_real_walk_and_keeps_the_physics_apart(tmp_path):
+    """``aider-exo bench profile``: a walk under cProfile, PyBullet's step as its own part, the
+    parts adding up to everything profiled, and the raw profile written for other viewers."""
+    import argparse
+    import pstats
+
+    from tools.bench import profile as bench
+
+    out = tmp_path / "walk.pstats"
+    result = bench.run(argparse.Namespace(config=None, cycles=1, top=5, out=str(out)))
+    assert result["walk"]["steps_completed"] >= 1 and result["walk"]["fall"] is None
+    parts = {p["part"]: p["share"] for p in result["parts"]}
+    assert parts["physics (PyBullet step)"] > 0 and parts["simulation"] > 0 and parts["controller"] > 0
+    assert abs(sum(parts.values()) - 1.0) < 1e-3
+    assert len(result["functions"]) == 5 and result["functions"][0]["share"] >= result["functions"][-1]["share"]
+    assert any(name == "physics_step" for _, _, name in pstats.Stats(str(out)).stats)
+    assert "own time by part of the system" in bench.format_text(result)
 
 
 def test_the_loop_writes_one_telemetry_record_per_tick(rig, tmp_path):

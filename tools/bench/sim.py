@@ -19,38 +19,32 @@ import numpy as np
 
 from config import ConfigError, default_config_path, load_config
 from protocol.clock import MonotonicClock
+from tools.bench import median_of_runs
 
 GOAL_REALTIME = 10.0
-GOAL_OVERHEAD_PERCENT = 30.0
+GOAL_OVERHEAD_PERCENT = 60.0  # issue 29
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", help="YAML configuration (default: the packaged one)")
-    parser.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per mode (default 10)")
+    parser.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per mode and repeat (default 10)")
+    parser.add_argument("--repeats", type=int, default=3, help="runs per mode; the figures are their medians (default 3)")
 
 
 def _run_mode(cfg: Any, mode: str, seconds: float) -> dict[str, Any]:
     from sim.walk import Walker, gait_settings, initial_pose  # PyBullet loads only when this benchmark runs
-    from sim.world import World
+    from sim.world import PhysicsTimer, World
 
     clock = MonotonicClock()
     sim_cfg = dataclasses.replace(cfg, mode=mode)
     with World(sim_cfg) as world:
         world.place(initial_pose(sim_cfg))
         walker = Walker(world, sim_cfg, gait_settings(sim_cfg, settle_s=seconds + 1.0), np.random.default_rng(0))
-        step = world.client.stepSimulation
-        physics_ns = 0
-
-        def timed_step() -> None:
-            nonlocal physics_ns
-            start = clock.now_ns()
-            step()
-            physics_ns += clock.now_ns() - start
-
-        world.client.stepSimulation = timed_step  # an instance attribute shadows BulletClient's lookup
+        physics = PhysicsTimer(world, clock)
         start = clock.now_ns()
         result = walker.run(max_steps=1, max_time_s=seconds)
         total_ns = clock.now_ns() - start
+    physics_ns = physics.ns
     simulated = result.duration_s
     physics_s, total_s = physics_ns / 1e9, total_ns / 1e9
     return {
@@ -68,16 +62,20 @@ def _run_mode(cfg: Any, mode: str, seconds: float) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    if not args.seconds > 0:
-        raise ConfigError("--seconds must be positive")
+    if not args.seconds > 0 or args.repeats <= 0:
+        raise ConfigError("--seconds and --repeats must be positive")
     cfg = load_config(args.config or default_config_path())
     if cfg.sim is None:
         raise ConfigError("sim: section required by the simulation benchmark", key="sim")
-    modes = [_run_mode(cfg.sim, mode, args.seconds) for mode in ("full3d", "sagittal")]
+    modes = []
+    for mode in ("full3d", "sagittal"):
+        runs = [_run_mode(cfg.sim, mode, args.seconds) for _ in range(args.repeats)]
+        modes.append(median_of_runs(runs) | {"overhead_percent_runs": [r["overhead_percent"] for r in runs]})
     return {
         "benchmark": "sim",
         "physics_rate_hz": cfg.sim.physics.rate_hz,
         "control_hz": cfg.sim.patient.control_hz,
+        "repeats": args.repeats,
         "modes": modes,
         "goals": {"realtime_factor_min": GOAL_REALTIME, "overhead_percent_max": GOAL_OVERHEAD_PERCENT},
         "machine": {"python": platform.python_version(), "cpu_count": os.cpu_count(), "processor": platform.processor() or platform.machine()},
@@ -86,7 +84,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 def format_text(r: dict[str, Any]) -> str:
     lines = [
-        f"simulation benchmark: physics {r['physics_rate_hz']} Hz, control {r['control_hz']} Hz, one core",
+        f"simulation benchmark: physics {r['physics_rate_hz']} Hz, control {r['control_hz']} Hz, one core, median of {r['repeats']} runs",
         f"{'mode':<10}{'sim s':>7}{'x real time':>13}{'bare physics':>14}{'overhead':>10}{'us/tick':>9}",
     ]
     for m in r["modes"]:

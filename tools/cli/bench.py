@@ -15,6 +15,7 @@ BENCHMARKS = {
     "nodes": "tools.bench.nodes",
     "controller": "tools.bench.controller",
     "trace": "tools.bench.trace",
+    "profile": "tools.bench.profile",
 }
 
 

@@ -1,0 +1,110 @@
+"""Where a walk's time goes: a lock-step walk (the controller, the four emulated nodes, the
+simulation; as ``bench controller`` walks it) under Python's cProfile, its functions ranked by
+their own time, and that time summed by part of the system.
+
+PyBullet's step is its own entry (``physics_step``, :class:`sim.world.PhysicsTimer`); PyBullet's other C functions are called
+through ``functools.partial``, which cProfile attributes to their Python caller. cProfile adds a
+cost to every Python call, so Python's share is larger here than in the unprofiled walk: rank
+with this, measure with ``bench sim`` and ``bench controller``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import pstats
+from pathlib import Path
+from typing import Any
+
+from config import ConfigError, default_config_path, load_config, with_overrides
+
+#: parts of the system by where a function is defined (first match wins)
+PARTS = (
+    ("physics (PyBullet step)", "sim/world.py:physics_step"),
+    ("simulation", "/sim/"),
+    ("nodes", "/nodes/"),
+    ("protocol", "/protocol/"),
+    ("controller", "/controller/"),
+    ("pipeline and benchmark", "/tools/"),
+    ("numpy and scipy", "numpy"),
+    ("numpy and scipy", "scipy"),
+    ("python-can", "/can/"),
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", help="YAML configuration (default: the packaged one)")
+    parser.add_argument("--cycles", type=int, default=10, help="gait cycles walked (default 10)")
+    parser.add_argument("--top", type=int, default=25, help="functions listed (default 25)")
+    parser.add_argument("--out", help="also write the raw profile here (pstats format, for snakeviz or pstats)")
+
+
+def _part(filename: str, name: str) -> str:
+    where = f"{filename}:{name}"
+    for part, marker in PARTS:
+        if marker in where:
+            return part
+    return "Python built-ins and standard library"
+
+
+def _label(filename: str, line: int, name: str) -> str:
+    root = str(Path(__file__).resolve().parents[2]) + "/"
+    if filename.startswith(root):
+        return f"{filename.removeprefix(root)}:{line}({name})"
+    if "site-packages/" in filename:
+        return f"{filename.split('site-packages/', 1)[1]}:{line}({name})"
+    return f"{filename}:{line}({name})" if filename != "~" else name
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    from tools.bench.controller import MODE, SEED, _lockstep, _max_ticks
+
+    if args.cycles <= 0 or args.top <= 0:
+        raise ConfigError("--cycles and --top must be positive")
+    cfg = load_config(args.config or default_config_path())
+    if cfg.sim is None or cfg.nodes is None or cfg.controller is None:
+        raise ConfigError("controller, sim and nodes sections required by the profile", key="controller")
+    cfg = with_overrides(cfg, {"sim.mode": MODE})
+    args.max_ticks = None
+    profiler = cProfile.Profile()
+    profiler.enable()
+    walk = _lockstep(cfg, args.cycles, _max_ticks(args, args.cycles))
+    profiler.disable()
+    if args.out:
+        profiler.dump_stats(args.out)
+    stats = pstats.Stats(profiler).stats  # (file, line, name) -> (primitive calls, calls, own time, cumulative, callers)
+    total = sum(own for _, _, own, _, _ in stats.values())
+    rows = sorted(stats.items(), key=lambda kv: -kv[1][2])
+    parts: dict[str, float] = {}
+    for (filename, _, name), (_, _, own, _, _) in rows:
+        part = _part(filename, name)
+        parts[part] = parts.get(part, 0.0) + own
+    ticks = walk["walk"]["ticks"]
+    return {
+        "benchmark": "profile",
+        "mode": MODE,
+        "seed": SEED,
+        "walk": walk["walk"],
+        "profiled_s": round(total, 3),
+        "us_per_tick": round(total / ticks * 1e6, 1) if ticks else None,
+        "parts": [{"part": p, "own_s": round(t, 3), "share": round(t / total, 4)} for p, t in sorted(parts.items(), key=lambda kv: -kv[1])],
+        "functions": [
+            {"function": _label(f, line, name), "calls": calls, "own_s": round(own, 4), "share": round(own / total, 4),
+             "cumulative_s": round(cum, 4)}
+            for (f, line, name), (_, calls, own, cum, _) in rows[: args.top]
+        ],
+    }
+
+
+def format_text(r: dict[str, Any]) -> str:
+    w = r["walk"]
+    lines = [
+        f"profile of a lock-step walk ({r['mode']}, seed {r['seed']}): {w['cycles_completed']} gait cycles, {w['ticks']} ticks, "
+        f"{r['profiled_s']:.2f} s under cProfile ({r['us_per_tick']:.0f} us per tick; unprofiled figures: bench controller)",
+        "own time by part of the system:",
+    ]
+    lines += [f"  {p['share'] * 100:5.1f} %  {p['own_s']:7.2f} s  {p['part']}" for p in r["parts"]]
+    lines.append(f"functions by own time (top {len(r['functions'])}):")
+    lines.append(f"  {'share':>7}  {'own s':>7}  {'calls':>8}  function")
+    lines += [f"  {f['share'] * 100:5.1f} %  {f['own_s']:7.3f}  {f['calls']:>8}  {f['function']}" for f in r["functions"]]
+    return "\n".join(lines) + "\n"
