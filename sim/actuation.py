@@ -40,10 +40,34 @@ class Gains:
     hold_torque_limit: np.ndarray
 
 
-class JointImpedance:
-    """Impedance loops of ``n`` joints, vectorised; ``torques(q, qd)`` runs once per physics step."""
+#: rows of a joint-loop law: every joint's loop is ``clip(k (x0 - q) + d (v0 - qd) + f, lo, hi)``
+LAW_ROWS = 7
 
-    def __init__(self, names: tuple[str, ...], lower: np.ndarray, upper: np.ndarray, rated_torque: np.ndarray, gains: Gains) -> None:
+
+def law_torques(rows: tuple[np.ndarray, ...], q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+    """Every column's ``clip(k (x0 - q) + d (v0 - qd) + f, lo, hi)`` for the rows (k, x0, d, v0,
+    f, lo, hi) of a (7, n) law (``tuple(law)``, made once: views that follow the law's changes).
+    Element by element, so each joint's torque is the same whichever other joints share the law."""
+    k, x0, d, v0, f, lo, hi = rows
+    tau = k * (x0 - q) + d * (v0 - qd) + f
+    return np.minimum(np.maximum(tau, lo), hi)  # np.clip(tau, lo, hi) without its dispatch
+
+
+def spring_law(stiffness: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """The (7, n) law of passive springs ``k (rest - q)``: no damping, no feed-forward, no limit."""
+    n = len(stiffness)
+    return np.array([stiffness, rest, np.zeros(n), np.zeros(n), np.zeros(n), np.full(n, -np.inf), np.full(n, np.inf)], dtype=float)
+
+
+class JointImpedance:
+    """Impedance loops of ``n`` joints, vectorised; ``torques(q, qd)`` runs once per physics step.
+
+    ``law``, if given, is a (7, n) view into a larger law array whose torques the owner computes
+    at once with :func:`law_torques` (the world's every torque-driven joint in one step); it must
+    then call :meth:`latch` with these joints' positions first and set :attr:`applied`."""
+
+    def __init__(self, names: tuple[str, ...], lower: np.ndarray, upper: np.ndarray, rated_torque: np.ndarray, gains: Gains,
+                 law: np.ndarray | None = None) -> None:
         self.names = names
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
         self.rated = np.asarray(rated_torque, float)
@@ -61,8 +85,10 @@ class JointImpedance:
         self._latch_pending = True
         # Each joint's loop as tau = clip(k (x0 - q) + d (v0 - qd) + f, lo, hi), set per command and
         # latch (:meth:`_set_law`), so that the per-step :meth:`torques` is a few array operations.
-        self._law = np.zeros((7, n))  # rows k, x0, d, v0, f, lo, hi; a joint's column set at once
-        self._k, self._x0, self._d, self._v0, self._f, self._lo, self._hi = self._law
+        self._law = np.zeros((LAW_ROWS, n)) if law is None else law  # rows k, x0, d, v0, f, lo, hi; a joint's column set at once
+        if self._law.shape != (LAW_ROWS, n):
+            raise ValueError(f"a law of {n} joints is ({LAW_ROWS}, {n}), not {self._law.shape}")
+        self._rows = tuple(self._law)
         for i in range(n):
             self._set_law(i)
 
@@ -101,15 +127,18 @@ class JointImpedance:
         else:
             self._law[:, i] = 0.0
 
-    def torques(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        """Torque of every joint for the measured positions and velocities."""
-        if self._latch_pending:  # hold and quick stop latch the position measured when entered
+    def latch(self, q: np.ndarray) -> None:
+        """Hold and quick stop latch the position measured when entered: from ``q``, these joints'
+        positions before the step whose torques follow (nothing to do on most steps)."""
+        if self._latch_pending:
             for i in np.flatnonzero(self._needs_latch):
                 self.hold_position[i] = q[i]
                 self._needs_latch[i] = False
                 self._set_law(i)
             self._latch_pending = False
-        tau = self._k * (self._x0 - q) + self._d * (self._v0 - qd) + self._f
-        tau = np.minimum(np.maximum(tau, self._lo), self._hi)  # np.clip(tau, -limit, limit) without its dispatch
-        self.applied = tau
-        return tau
+
+    def torques(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Torque of every joint for the measured positions and velocities."""
+        self.latch(q)
+        self.applied = law_torques(self._rows, q, qd)
+        return self.applied

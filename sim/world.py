@@ -26,7 +26,7 @@ import pybullet_data
 from pybullet_utils.bullet_client import BulletClient
 
 from config.sim_schema import SimConfig
-from sim.actuation import Gains, JointImpedance
+from sim.actuation import LAW_ROWS, Gains, JointImpedance, law_torques, spring_law
 from sim.model import (
     ANKLE_JOINTS,
     ARM_JOINT_NAMES,
@@ -160,6 +160,14 @@ class World:
         self._all_joints = list(range(len(JOINT_ORDER)))
         j = cfg.model.joints
         fw = cfg.firmware
+        # One law for every torque-driven joint, in the order of _torque_idx (exoskeleton, arms,
+        # ankles): the node boards' and the arms' loops own their columns, the ankle springs are
+        # fixed; each physics step computes every torque at once (law_torques).
+        n_exo, n_arm = len(self._exo_idx), len(self._arm_idx)
+        self._law = np.zeros((LAW_ROWS, len(self._torque_idx)))
+        self._law[:, n_exo + n_arm:] = spring_law(np.full(len(ankles), j.ankle.stiffness_nm_rad), np.full(len(ankles), j.ankle.rest_rad))
+        self._law_rows = tuple(self._law)
+        self._exo_slice, self._arm_slice = slice(0, n_exo), slice(n_exo, n_exo + n_arm)
         exo_specs = [j.hip, j.knee, j.hip, j.knee]
         self.exo = JointImpedance(
             EXO_JOINTS,
@@ -167,6 +175,7 @@ class World:
             np.array([s.torque_limit_nm for s in exo_specs]),
             Gains(np.full(4, fw.stiffness_nm_rad), np.full(4, fw.damping_nms_rad), np.full(4, fw.hold_stiffness_nm_rad),
                   np.full(4, fw.hold_damping_nms_rad), np.full(4, fw.hold_torque_limit_nm)),
+            law=self._law[:, self._exo_slice],
         )
         arm_specs = [j.shoulder_flexion, j.shoulder_abduction, j.elbow] * 2
         pc = cfg.patient
@@ -176,13 +185,14 @@ class World:
             np.array([s.torque_limit_nm for s in arm_specs]),
             Gains(np.full(6, pc.arm_stiffness_nm_rad), np.full(6, pc.arm_damping_nms_rad), np.full(6, pc.arm_stiffness_nm_rad),
                   np.full(6, pc.arm_damping_nms_rad), np.array([s.torque_limit_nm for s in arm_specs])),
+            law=self._law[:, self._arm_slice],
         )
         self.q = np.zeros(len(JOINT_ORDER))
         self.qd = np.zeros(len(JOINT_ORDER))
         self.tau = np.zeros(len(JOINT_ORDER))
-        self.base_velocity_prev = np.zeros(3)  # the base's linear and angular velocity after the last step
+        # the base's linear velocity after the last step and the one before, and its angular velocity
+        self._base_velocity = self._base_velocity_before = (0.0, 0.0, 0.0)
         self._base_angular_velocity = (0.0, 0.0, 0.0)
-        self.base_acceleration = np.zeros(3)
         self._links: LinkStates | None = None  # this state's link frames, fetched on first use
         self._contacts: dict[int, list[tuple]] | None = None  # this state's floor contacts by link
 
@@ -244,7 +254,7 @@ class World:
             self.exo.command(i, 1, q[name], 0.0, 0.0)
         for i, name in enumerate(ARM_JOINT_NAMES):
             self.arms.command(i, 1, q[name], 0.0, 0.0)
-        self.base_velocity_prev = np.zeros(3)
+        self._base_velocity = self._base_velocity_before = (0.0, 0.0, 0.0)
         self._base_angular_velocity = (0.0, 0.0, 0.0)
         self._changed()
 
@@ -259,23 +269,26 @@ class World:
         """One physics step: joint loops (firmware, muscles, ankle springs), then the physics."""
         c = self.client
         self.read_joints()
-        q, qd = self.q, self.qd
-        tau_exo = self.exo.torques(q[self._exo_idx], qd[self._exo_idx])
-        tau_arm = self.arms.torques(q[self._arm_idx], qd[self._arm_idx])
-        ankle = self.cfg.model.joints.ankle
-        tau_ankle = -ankle.stiffness_nm_rad * (q[self._ankle_idx] - ankle.rest_rad)
-        forces = np.concatenate([tau_exo, tau_arm, tau_ankle])
-        self.tau[self._torque_idx_array] = forces
+        idx = self._torque_idx_array
+        q = self.q[idx]  # the law's order
+        self.exo.latch(q[self._exo_slice])
+        self.arms.latch(q[self._arm_slice])
+        forces = law_torques(self._law_rows, q, self.qd[idx])
+        self.exo.applied, self.arms.applied = forces[self._exo_slice], forces[self._arm_slice]
+        self.tau[idx] = forces
         c.setJointMotorControlArray(self.robot, self._torque_idx, pybullet.TORQUE_CONTROL, forces=forces.tolist())
         if self.cfg.mode == "sagittal":
             self._hold_to_plane()
         c.stepSimulation()
         self.steps += 1
         self._changed()
-        lin, self._base_angular_velocity = c.getBaseVelocity(self.robot)
-        v = np.array(lin)
-        self.base_acceleration = (v - self.base_velocity_prev) / self.dt
-        self.base_velocity_prev = v
+        self._base_velocity_before = self._base_velocity
+        self._base_velocity, self._base_angular_velocity = c.getBaseVelocity(self.robot)
+
+    @property
+    def base_acceleration(self) -> np.ndarray:
+        """The base's linear acceleration over the last physics step (what the trunk IMU senses)."""
+        return (np.array(self._base_velocity) - np.array(self._base_velocity_before)) / self.dt
 
     def _changed(self) -> None:
         """The world moved (a physics step, a placement): what was read of it is stale."""
@@ -285,7 +298,7 @@ class World:
     def _hold_to_plane(self) -> None:
         c, s = self.client, self.cfg.sagittal
         pos, orn = c.getBasePositionAndOrientation(self.robot)
-        lin, ang = self.base_velocity_prev, self._base_angular_velocity  # as read after the last step
+        lin, ang = self._base_velocity, self._base_angular_velocity  # as read after the last step
         roll, _, yaw = c.getEulerFromQuaternion(orn)
         fy = -s.lateral_stiffness_n_m * pos[1] - s.lateral_damping_ns_m * lin[1]
         c.applyExternalForce(self.robot, -1, [0, fy, 0], pos, pybullet.WORLD_FRAME)
@@ -303,7 +316,7 @@ class World:
         if self._links is None:
             c = self.client
             base_pos, base_orn = c.getBasePositionAndOrientation(self.robot)
-            base_lin, base_ang = self.base_velocity_prev, self._base_angular_velocity
+            base_lin, base_ang = self._base_velocity, self._base_angular_velocity
             states = c.getLinkStates(self.robot, self._all_joints, computeLinkVelocity=1)
             n = len(states) + 1
             com, vel, origin = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
