@@ -209,15 +209,23 @@ def test_the_controller_benchmark_runs_the_real_pipeline():
 
 
 def test_the_profile_ranks_a_real_walk_and_keeps_the_physics_apart(tmp_path):
-    """``aider-exo bench profile``: a walk under cProfile, PyBullet's step as its own part, the
-    parts adding up to everything profiled, and the raw profile written for other viewers."""
+    """``aider-exo bench profile``: the walk's main functions timed per tick (the timers removed
+    after), then the walk under cProfile, PyBullet's step as its own part, the parts adding up to
+    everything profiled, and the raw profile written for other viewers."""
     import argparse
     import pstats
 
     from tools.bench import profile as bench
 
+    from sim.walk import Walker
+
     out = tmp_path / "walk.pstats"
+    tick = Walker.tick
     result = bench.run(argparse.Namespace(config=None, cycles=1, top=5, out=str(out)))
+    assert Walker.tick is tick  # the timers are gone
+    timed = {p["function"]: p["us_per_tick"] for p in result["timed"]["parts"]}
+    assert set(timed) == {name for _, _, name in bench.TIMED} and all(us > 0 for us in timed.values())
+    assert timed["Walker.tick"] > timed["World.step"] > timed["PhysicsTimer.physics_step"]
     assert result["walk"]["steps_completed"] >= 1 and result["walk"]["fall"] is None
     parts = {p["part"]: p["share"] for p in result["parts"]}
     assert parts["physics (PyBullet step)"] > 0 and parts["simulation"] > 0 and parts["controller"] > 0

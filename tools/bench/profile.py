@@ -1,6 +1,11 @@
-"""Where a walk's time goes: a lock-step walk (the controller, the four emulated nodes, the
-simulation; as ``bench controller`` walks it) under Python's cProfile, its functions ranked by
-their own time, and that time summed by part of the system.
+"""Where a walk's time goes, twice over the same lock-step walk (the controller, the four
+emulated nodes, the simulation; as ``bench controller`` walks it):
+
+1. unprofiled, the wall time of the pipeline's main functions per tick (:data:`TIMED`, each
+   wrapped by a clock read; inclusive of what it calls; about 0.2 us per call added), the
+   figures to trust for how many microseconds a part costs;
+2. under Python's cProfile, every function ranked by its own time, and that time summed by part
+   of the system: where to look inside a part.
 
 PyBullet's step is its own entry (``physics_step``, :class:`sim.world.PhysicsTimer`); PyBullet's other C functions are called
 through ``functools.partial``, which cProfile attributes to their Python caller. cProfile adds a
@@ -11,12 +16,16 @@ with this, measure with ``bench sim`` and ``bench controller``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import cProfile
+import importlib
 import pstats
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from config import ConfigError, default_config_path, load_config, with_overrides
+from protocol.clock import MonotonicClock
 
 #: parts of the system by where a function is defined (first match wins)
 PARTS = (
@@ -30,6 +39,66 @@ PARTS = (
     ("numpy and scipy", "scipy"),
     ("python-can", "/can/"),
 )
+
+
+#: (depth, module, class.function) timed per tick without the profiler; a deeper entry is part of
+#: the entry above it (inclusive times: a parent's is more than its children's sum)
+TIMED = (
+    (0, "nodes.host", "NodesHost.on_sync"),
+    (1, "sim.walk", "Walker.tick"),
+    (2, "sim.world", "World.step"),
+    (3, "sim.world", "PhysicsTimer.physics_step"),
+    (3, "sim.world", "World.read_joints"),
+    (3, "sim.world", "World._hold_to_plane"),
+    (2, "sim.walk", "Walker.control"),
+    (3, "sim.walk", "distribute"),
+    (2, "sim.sensors", "Sensors.read"),
+    (2, "sim.kinematics", "Kinematics.update"),
+    (2, "sim.walk", "Walker.patient_update"),
+    (2, "sim.walk", "Walker._support_margin"),
+    (2, "sim.walk", "Walker._fall_reason"),
+    (1, "nodes.host", "NodesHost._report"),
+    (1, "nodes.host", "NodesHost._apply"),
+    (0, "controller.core", "ControllerCore.tick"),
+    (1, "controller.estimator", "StateEstimator.update"),
+    (1, "controller.core", "ControllerCore._measurements"),
+    (1, "controller.core", "ControllerCore._command"),
+    (1, "controller.gait", "GaitPlanner.double_support"),
+    (1, "controller.gait", "GaitPlanner.swing"),
+    (0, "protocol.e2e", "Receiver.receive"),
+    (0, "controller.core", "ControllerCore.accept"),
+    (0, "controller.loop", "LockstepLoop._send"),
+)
+
+
+@contextlib.contextmanager
+def _timed(clock: Any) -> Iterator[dict[str, int]]:
+    """Wrap every :data:`TIMED` function (on its class or module) with a clock read; yields the
+    nanoseconds spent in each by name, and restores the functions after."""
+    spent: dict[str, int] = {}
+    restore = []
+    for _, module_name, name in TIMED:
+        owner: Any = importlib.import_module(module_name)
+        *path, attr = name.split(".")
+        for part in path:
+            owner = getattr(owner, part)
+        inner = owner.__dict__[attr]
+        spent[name] = 0
+
+        def timed(*args: Any, _inner: Any = inner, _name: str = name, **kwargs: Any) -> Any:
+            start = clock.now_ns()
+            try:
+                return _inner(*args, **kwargs)
+            finally:
+                spent[_name] += clock.now_ns() - start
+
+        setattr(owner, attr, timed)
+        restore.append((owner, attr, inner))
+    try:
+        yield spent
+    finally:
+        for owner, attr, inner in restore:
+            setattr(owner, attr, inner)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -66,6 +135,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         raise ConfigError("controller, sim and nodes sections required by the profile", key="controller")
     cfg = with_overrides(cfg, {"sim.mode": MODE})
     args.max_ticks = None
+    with _timed(MonotonicClock()) as spent:
+        timed_walk = _lockstep(cfg, args.cycles, _max_ticks(args, args.cycles))
+    timed_ticks = timed_walk["walk"]["ticks"]
+    pipeline_us = timed_walk["us_per_walking_tick"]["pipeline"]
     profiler = cProfile.Profile()
     profiler.enable()
     walk = _lockstep(cfg, args.cycles, _max_ticks(args, args.cycles))
@@ -85,6 +158,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "mode": MODE,
         "seed": SEED,
         "walk": walk["walk"],
+        "timed": {
+            "ticks": timed_ticks,
+            "pipeline_us_per_walking_tick": pipeline_us,
+            "parts": [{"depth": depth, "function": name, "us_per_tick": round(spent[name] / timed_ticks / 1e3, 1)}
+                      for depth, _, name in TIMED],
+        },
         "profiled_s": round(total, 3),
         "us_per_tick": round(total / ticks * 1e6, 1) if ticks else None,
         "parts": [{"part": p, "own_s": round(t, 3), "share": round(t / total, 4)} for p, t in sorted(parts.items(), key=lambda kv: -kv[1])],
@@ -97,8 +176,13 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def format_text(r: dict[str, Any]) -> str:
-    w = r["walk"]
+    w, t = r["walk"], r["timed"]
     lines = [
+        f"wall time per tick, unprofiled ({t['ticks']} ticks; the pipeline {t['pipeline_us_per_walking_tick']:.0f} us per walking tick "
+        "with these timers), inclusive:",
+    ]
+    lines += [f"  {'  ' * p['depth']}{p['function']:<{40 - 2 * p['depth']}}{p['us_per_tick']:8.1f} us" for p in t["parts"]]
+    lines += [
         f"profile of a lock-step walk ({r['mode']}, seed {r['seed']}): {w['cycles_completed']} gait cycles, {w['ticks']} ticks, "
         f"{r['profiled_s']:.2f} s under cProfile ({r['us_per_tick']:.0f} us per tick; unprofiled figures: bench controller)",
         "own time by part of the system:",
