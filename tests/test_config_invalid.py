@@ -27,7 +27,6 @@ import sys
 import types
 import typing
 from collections import Counter
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
@@ -450,49 +449,24 @@ def _library_message(path: Path) -> str:
 
 
 _RUNNERS = {"controller": _controller, "nodes": _nodes}
-_CLI_TESTS = {
-    "test_controller_cli_exits_with_the_config_error_before_the_bus": "controller",
-    "test_nodes_cli_exits_with_the_config_error_before_the_bus": "nodes",
-}
-
-
-@pytest.fixture(scope="module")
-def cli_runs(request, tmp_path_factory) -> dict[tuple[str, str], tuple[Path, subprocess.CompletedProcess[str]]]:
-    """The CLI runs of the selected table tests, started together on all cores (a start costs about 1 s).
-
-    Maps (command, variant id) to the file and the finished process; each test only inspects its run.
-    """
-    jobs = sorted({
-        (_CLI_TESTS[item.originalname], item.callspec.params["bad"].id)
-        for item in request.session.items
-        if getattr(item, "originalname", None) in _CLI_TESTS and hasattr(item, "callspec")
-    })
-
-    def run(job: tuple[str, str]) -> tuple[tuple[str, str], tuple[Path, subprocess.CompletedProcess[str]]]:
-        command, name = job
-        directory = tmp_path_factory.mktemp(f"{command}-{name}")
-        path = _write(directory, BY_ID[name].text)
-        return job, (path, _RUNNERS[command](path, directory))
-
-    with ThreadPoolExecutor(max_workers=max(2, min(4, os.cpu_count() or 2))) as pool:
-        return dict(pool.map(run, jobs))
-
-
-def _check_cli_run(cli_runs: dict[Any, Any], command: str, bad: Bad) -> None:
-    path, proc = cli_runs[command, bad.id]
+def _check_cli_run(tmp_path: Path, command: str, bad: Bad) -> None:
+    """One CLI run per test (about 0.3 s; xdist spreads them over the cores: a batch of every
+    run in one fixture was started by each worker whole, pytest 9 breaking xdist's loadgroup)."""
+    path = _write(tmp_path, bad.text)
+    proc = _RUNNERS[command](path, tmp_path)
     expected = _library_message(path)
     _check_message(bad, expected, path)
     _assert_config_error_before_bus(proc, expected)
 
 
 @pytest.mark.parametrize("bad", _params(BAD))
-def test_controller_cli_exits_with_the_config_error_before_the_bus(cli_runs, bad):
-    _check_cli_run(cli_runs, "controller", bad)
+def test_controller_cli_exits_with_the_config_error_before_the_bus(tmp_path, bad):
+    _check_cli_run(tmp_path, "controller", bad)
 
 
 @pytest.mark.parametrize("bad", _params([BY_ID[name] for name in NODES_SUBSET]))
-def test_nodes_cli_exits_with_the_config_error_before_the_bus(cli_runs, bad):
-    _check_cli_run(cli_runs, "nodes", bad)
+def test_nodes_cli_exits_with_the_config_error_before_the_bus(tmp_path, bad):
+    _check_cli_run(tmp_path, "nodes", bad)
 
 
 @pytest.mark.parametrize("run", [_controller, _nodes], ids=["controller", "nodes"])
