@@ -113,6 +113,26 @@ class JointImpedance:
         self._set_law(i)
         return True
 
+    def track(self, positions: np.ndarray, torques: np.ndarray) -> int:
+        """Every joint in track mode at once, to ``positions`` with the feed-forward ``torques``, no
+        velocity feed-forward and the rated limit: :meth:`command` of each, vectorised (an invalid
+        joint's command is rejected and counted, the others taken; the rated limit needs no check).
+        Returns the rejections."""
+        positions, torques = np.asarray(positions, dtype=float), np.asarray(torques, dtype=float)
+        ok = np.isfinite(positions) & np.isfinite(torques) & (self.lower <= positions) & (positions <= self.upper)
+        rejected = int(len(ok) - ok.sum())
+        cols: slice | np.ndarray = slice(None)
+        if rejected:
+            positions, torques, cols = positions[ok], torques[ok], ok
+            self.rejected += rejected
+        g = self.gains
+        self.mode[cols] = int(Mode.TRACK)
+        self.target[cols], self.velocity_ff[cols], self.torque_ff[cols], self.limit[cols] = positions, 0.0, torques, self.rated[cols]
+        law = self._law
+        law[0, cols], law[1, cols], law[2, cols], law[3, cols] = g.stiffness[cols], positions, g.damping[cols], 0.0
+        law[4, cols], law[5, cols], law[6, cols] = torques, -self.rated[cols], self.rated[cols]
+        return rejected
+
     def _set_law(self, i: int) -> None:
         """Joint ``i``'s loop coefficients for its mode. Track: ``K (q* - q) + D (qd* - qd) + tau_ff``
         within the command's limit; hold and quick stop: ``K_h (q_latched - q) + D_h (0 - qd)``

@@ -63,6 +63,17 @@ class Kinematics:
         jac[:, idx] = cross(self.joint_axis[idx], point - self.joint_origin[idx]).T
         return jac
 
+    def generalised_force(self, links: list[int], points: np.ndarray, forces: np.ndarray) -> np.ndarray:
+        """(n,) ``sum_c point_jacobian(links[c], points[c]).T @ forces[c]``: the joint torques that
+        world forces at points of links produce, all at once. Joint j's share of force f at p is
+        ``a_j . ((p - o_j) x f) = a_j . (p x f - o_j x f)``, so the forces on the links j moves
+        sum first: ``a_j . (sum p x f - o_j x sum f)``."""
+        moved = self.moves[:, np.asarray(links) + 1].astype(float)  # (n, k): joint j moves contact c's link
+        points, forces = np.asarray(points, dtype=float), np.asarray(forces, dtype=float)
+        moment = moved @ cross(points, forces)  # (n, 3)
+        force = moved @ forces
+        return np.einsum("ij,ij->i", self.joint_axis, moment - cross(self.joint_origin, force))
+
     def gravity_torques(self) -> np.ndarray:
         """Joint torques that hold every link against gravity (``-Q``, Q the generalised gravity force)."""
         # Q_j = sum over links i moved by j of m_i (-g z) . (a_j x (c_i - o_j))

@@ -38,7 +38,7 @@ from sim.balance import Contact, WrenchGains, desired_wrench, distribute
 from sim.intention import Intention
 from sim.kinematics import Kinematics
 from sim.linalg import clamp
-from sim.model import JOINT_ORDER, arm_ik, leg_ik
+from sim.model import arm_ik, leg_ik
 from sim.sensors import Sensors, rpy_from_matrix
 from sim.truth import convex_hull_2d, fore_aft_ratio, pivot_polygon, stability_margin
 from sim.world import GRAVITY, StancePose, World
@@ -484,17 +484,20 @@ class Walker:
             weights=np.array([1.0, 1.0, 1.0, 2.0, 2.0, 0.5]), known_moment=spring,
         )
         g = kin.gravity_torques()  # the arms' and the swing leg's feed-forward
-        tau = g.copy()  # minus the contact forces below: the stance legs' and planted arms' share
-        for i in foot_links.values():  # the floor holds a stance foot up, not the leg
-            tau -= kin.point_jacobian(i, kin.link_com[i + 1]).T @ np.array([0.0, 0.0, w.masses[i + 1] * GRAVITY])
-        for contact, f in zip(contacts, forces):
-            tau -= kin.point_jacobian(contact.link, contact.point).T @ f
+        # minus the contact forces: the stance legs' and planted arms' share; and the floor holds a
+        # stance foot up, not the leg
+        feet_i = list(foot_links.values())
+        links = feet_i + [contact.link for contact in contacts]
+        points = [kin.link_com[i + 1] for i in feet_i] + [contact.point for contact in contacts]
+        loads = [(0.0, 0.0, w.masses[i + 1] * GRAVITY) for i in feet_i] + list(forces)
+        tau = g - kin.generalised_force(links, points, loads) if links else g.copy()
         if self.scripted_exo:
             self._command_legs(reading, tau, g, trunk_origin, rpy[1])
         # Patient: planted arms push (torque feed-forward), moving arms follow their tip path.
-        for side in SIDES:
+        targets: list[float] = []
+        torques: list[float] = []
+        for side in SIDES:  # in the arms' joint order (ARM_JOINT_NAMES: left, then right)
             joints = self.arm_joints[side]
-            names = [JOINT_ORDER[j] for j in joints]
             if side in self.tip_path:
                 start, goal, u = self.tip_path[side]
                 point = start + (goal - start) * _minimum_jerk(u)
@@ -503,18 +506,16 @@ class Walker:
                 sign = 1.0 if side == "l" else -1.0
                 shoulder = trunk_origin + trunk_rot @ np.array([0.0, sign * self.body.shoulder_half_width_m, self.body.shoulder_above_hip_m])
                 try:
-                    q_arm = arm_ik(trunk_rot.T @ (point - shoulder), *self.body.arm_reach_m, side)
+                    targets += arm_ik(trunk_rot.T @ (point - shoulder), *self.body.arm_reach_m, side)
                 except ValueError:
-                    q_arm = tuple(w.q[j] for j in joints)
-                for name, j, qa in zip(names, joints, q_arm):
-                    n = w.arms.index(name)
-                    w.arms.command(n, Mode.TRACK, clamp(qa, w.arms.lower[n] + 1e-3, w.arms.upper[n] - 1e-3), 0.0,
-                                   clamp(g[j], -w.arms.rated[n], w.arms.rated[n]))
+                    targets += [w.q[j] for j in joints]
+                torques += [g[j] for j in joints]
             else:
-                for name, j in zip(names, joints):
-                    n = w.arms.index(name)
-                    q_now = clamp(w.q[j], w.arms.lower[n] + 1e-3, w.arms.upper[n] - 1e-3)
-                    w.arms.command(n, Mode.TRACK, q_now, 0.0, clamp(tau[j], -w.arms.rated[n], w.arms.rated[n]))
+                targets += [w.q[j] for j in joints]
+                torques += [tau[j] for j in joints]
+        arms = w.arms
+        arms.track(np.minimum(np.maximum(targets, arms.lower + 1e-3), arms.upper - 1e-3),
+                   np.minimum(np.maximum(torques, -arms.rated), arms.rated))
 
     def _command_legs(self, reading, tau: np.ndarray, g: np.ndarray, trunk_origin: np.ndarray, pitch: float) -> None:
         """The scripted exoskeleton's node commands (mode, position, velocity ff, torque ff)."""

@@ -150,3 +150,24 @@ def test_invalid_model_parameters_fail_at_load_naming_the_key(key, value, messag
     with pytest.raises(ConfigError) as info:
         with_overrides(CFG, {key: value})
     assert message in str(info.value) and "\n" not in str(info.value)
+
+
+def test_tracking_every_arm_joint_at_once_is_each_joints_command():
+    """``JointImpedance.track`` sets the same loop as ``command(i, TRACK, ...)`` joint by joint,
+    and rejects (and counts) an invalid joint alone, its previous command kept."""
+    rng = np.random.default_rng(5)
+    with World(CFG.sim) as a, World(CFG.sim) as b:
+        arms = a.arms
+        n = len(arms.names)
+        targets, torques = (arms.lower + arms.upper) / 2 + 0.1, np.linspace(-5.0, 5.0, n)
+        q, qd = targets + rng.normal(scale=0.01, size=n), rng.normal(scale=0.1, size=n)  # within the torque limits
+        assert arms.track(targets, torques) == 0
+        for i in range(n):
+            assert b.arms.command(i, 1, float(targets[i]), 0.0, float(torques[i]))
+        assert np.array_equal(arms.torques(q, qd), b.arms.torques(q, qd)) and np.array_equal(arms.mode, b.arms.mode)
+        bad_targets, bad_torques = targets + 0.01, torques.copy()
+        bad_targets[1], bad_torques[4] = arms.upper[1] + 0.5, float("nan")
+        assert arms.track(bad_targets, bad_torques) == 2 and arms.rejected == 2
+        moved, kept = arms.torques(q, qd), b.arms.torques(q, qd)
+        assert moved[1] == kept[1] and moved[4] == kept[4]  # the invalid joints' loops as they were
+        assert all(moved[i] != kept[i] for i in (0, 2, 3, 5))  # the valid ones took the new targets
