@@ -69,29 +69,42 @@ def distribute(
 
     ``known_moment`` is a moment the body receives anyway (the passive ankle springs), which the
     contact forces need not supply. Returns the forces and the weighted residual norm of the fit.
+
+    Each contact carries its minimum normal load ``f0`` plus non-negative amounts ``lam`` of its
+    four pyramid edges; the least-squares system stacks the weighted wrench rows over the
+    regularisation (each edge's amount at the square root of its contact's cost).
     """
     if known_moment is not None:
-        wrench = wrench - np.concatenate([np.zeros(3), known_moment])
+        wrench = wrench.copy()
+        wrench[3:] -= known_moment
     k = len(contacts)
     if k == 0:
         return np.zeros((0, 3)), float(np.linalg.norm(weights * wrench))
     edges = _stacked_edges(mu, tuple(c.lateral for c in contacts))  # (k, 4, 3)
     flat = edges.reshape(-1, 3)
     r = np.array([c.point for c in contacts]) - com  # (k, 3)
-    a = np.empty((6, 4 * k))
-    a[:3] = flat.T
-    a[3:] = cross(np.repeat(r, 4, axis=0), flat).T
-    f0 = np.array([0.0, 0.0, min_normal_n])
-    base = np.concatenate([k * f0, cross(r, f0).sum(axis=0)])
-    # the least-squares system: the weighted wrench rows over the regularisation's diagonal
-    lhs = np.zeros((6 + 4 * k, 4 * k))
-    lhs[:6] = weights[:, None] * a
-    np.fill_diagonal(lhs[6:], np.repeat([math.sqrt(ct.cost) for ct in contacts], 4))
-    rhs = np.concatenate([weights * (wrench - base), np.zeros(4 * k)])
+    n = 4 * k
+    lhs = np.zeros((6 + n, n))
+    lhs[:3] = flat.T
+    lhs[3:6] = cross(r.repeat(4, axis=0), flat).T
+    lhs[:6] *= weights[:, None]
+    lhs[_diagonal(n)] = np.repeat([math.sqrt(c.cost) for c in contacts], 4)
+    # what the minimum normal loads f0 = (0, 0, min_normal_n) give: force k f0, moment sum r x f0
+    sum_x, sum_y = r[:, 0].sum(), r[:, 1].sum()
+    base = np.array([0.0, 0.0, k * min_normal_n, min_normal_n * sum_y, -min_normal_n * sum_x, 0.0])
+    rhs = np.zeros(6 + n)
+    rhs[:6] = weights * (wrench - base)
     lam = nnls(lhs, rhs)
-    forces = np.einsum("ke,kec->kc", lam.reshape(k, 4), edges) + f0
-    residual = float(np.linalg.norm(weights * (a @ lam + base - wrench)))
+    forces = (lam.reshape(k, 4, 1) * edges).sum(axis=1)
+    forces[:, 2] += min_normal_n
+    residual = float(np.linalg.norm(lhs[:6] @ lam - rhs[:6]))
     return forces, residual
+
+
+@functools.lru_cache(maxsize=16)
+def _diagonal(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index of the regularisation's diagonal, rows 6.. of the (6 + n, n) system."""
+    return 6 + np.arange(n), np.arange(n)
 
 
 @dataclass(frozen=True)
