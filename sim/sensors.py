@@ -27,7 +27,9 @@ def contact_force_on_robot(cp: tuple) -> np.ndarray:
     forces act on A *against* their direction vectors (checked against static equilibrium of the
     joint torques in tests/test_sim_kinematics.py).
     """
-    return cp[9] * np.asarray(cp[7]) - cp[10] * np.asarray(cp[11]) - cp[12] * np.asarray(cp[13])
+    n, (nx, ny, nz), f1, (ax, ay, az), f2, (bx, by, bz) = cp[9], cp[7], cp[10], cp[11], cp[12], cp[13]
+    # in floats, the arithmetic of the numpy expression n * normal - f1 * dir1 - f2 * dir2, per component
+    return np.array((n * nx - f1 * ax - f2 * bx, n * ny - f1 * ay - f2 * by, n * nz - f1 * az - f2 * bz))
 
 
 def quantise(value: np.ndarray | float, resolution: float) -> np.ndarray:
@@ -74,9 +76,22 @@ class Sensors:
              cfg.force_resolution_n, cfg.force_resolution_n],
             [4, 4, 4, 2, 6, 3, 3, 3, 2, 2],
         )
+        # each noisy value's standard deviation (the values from the stick forces on), in that order;
+        # a sensor without noise draws nothing from the stream
+        self._noise_std = np.repeat(
+            [cfg.force_noise_n, cfg.imu_orientation_noise_rad, cfg.imu_orientation_noise_rad, cfg.gyro_noise_rad_s,
+             cfg.accel_noise_m_s2, cfg.force_noise_n, cfg.force_noise_n],
+            [2, 6, 3, 3, 3, 2, 2],
+        )
+        self._noisy = self._noise_std > 0
+        self._noise_draws = int(self._noisy.sum())
 
-    def _noise(self, std: float, shape: tuple[int, ...] | int) -> np.ndarray:
-        return self.rng.normal(0.0, std, shape) if std > 0 else np.zeros(shape)
+    def _noise(self) -> np.ndarray:
+        """One tick's noise of the noisy values: the draws of ``normal(0, std)`` value by value,
+        in one call (the same numbers from the stream)."""
+        noise = np.zeros(len(self._noise_std))
+        noise[self._noisy] = self._noise_std[self._noisy] * self.rng.standard_normal(self._noise_draws)
+        return noise
 
     def stick_force(self, side: str) -> float:
         """Axial force along the stick (compression positive) from the tip's contact forces."""
@@ -92,9 +107,11 @@ class Sensors:
         """Heel and toe normal force: contacts binned by their position along the foot."""
         w = self.world
         origin, rot = w.link_frame(f"foot_{side}")
+        (ox, oy, oz), (ax, ay, az) = origin.tolist(), rot[:, 0].tolist()
         heel = toe = 0.0
         for cp in w.contacts(f"foot_{side}"):
-            x_local = (np.asarray(cp[6]) - origin) @ rot[:, 0]
+            px, py, pz = cp[6]
+            x_local = (px - ox) * ax + (py - oy) * ay + (pz - oz) * az  # along the sole
             if x_local < self._heel_toe_split_x:
                 heel += cp[9]
             else:
@@ -102,7 +119,7 @@ class Sensors:
         return heel, toe
 
     def read(self) -> Reading:
-        w, cfg = self.world, self.cfg
+        w = self.world
         q = w.q[self._exo]
         qd = w.qd[self._exo]
         tau = w.exo.applied
@@ -112,19 +129,13 @@ class Sensors:
         omega_world = w.link_states().base_angular_velocity
         specific = rot.T @ (w.base_acceleration + np.array([0.0, 0.0, GRAVITY]))
         heel_toe = np.array([self.plantar("l"), self.plantar("r")])
-        force_std = cfg.force_noise_n
         # Noise drawn in the order of the Reading's fields (one seeded stream), then every value
         # quantised to its sensor's resolution in one vectorised round.
         raw = np.concatenate([
-            q, qd, tau,
-            sticks + self._noise(force_std, 2),
-            (stick_rpy + self._noise(cfg.imu_orientation_noise_rad, (2, 3))).ravel(),
-            rpy_from_matrix(rot) + self._noise(cfg.imu_orientation_noise_rad, 3),
-            rot.T @ omega_world + self._noise(cfg.gyro_noise_rad_s, 3),
-            specific + self._noise(cfg.accel_noise_m_s2, 3),
-            np.maximum(heel_toe[:, 0] + self._noise(force_std, 2), 0.0),
-            np.maximum(heel_toe[:, 1] + self._noise(force_std, 2), 0.0),
+            q, qd, tau, sticks, stick_rpy.ravel(), rpy_from_matrix(rot), rot.T @ omega_world, specific, heel_toe[:, 0], heel_toe[:, 1],
         ])
+        raw[12:] += self._noise()
+        raw[29:] = np.maximum(raw[29:], 0.0)  # a load cell under a foot reads no pull
         v = quantise(raw, self._resolution)
         return Reading(
             time_s=w.time_s,
