@@ -272,7 +272,8 @@ class SagittalConfig:
 @dataclass(frozen=True, kw_only=True)
 class SimConfig:
     mode: Literal["full3d", "sagittal"] = field_spec(
-        doc="full3d: the product's model; sagittal: trunk held to the walking plane (faster, more robust)."
+        doc="sagittal: the trunk held to the walking plane (the mode that walks); full3d: the 3-D model, which does not "
+            "walk yet (no frontal-plane leg joints: docs/SIM.md items 13 and 15)."
     )
     physics: PhysicsConfig = field_spec(doc="Physics engine settings.")
     sagittal: SagittalConfig = field_spec(doc="Plane constraint of the sagittal mode.")
