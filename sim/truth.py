@@ -367,7 +367,8 @@ class FallCriteria:
     tilt_limit_rad : float
         A fall when ``|roll|`` or ``|pitch|`` of the trunk exceeds this (> 0).
     min_base_height_m : float or None, default None
-        A fall when the trunk (base) height drops below this; None disables the check.
+        A fall when the base frame's height drops below this (the HHEA's base frame is midway
+        between the hip joints: its hip height); None disables the check.
     """
 
     allowed_contacts: frozenset[str]
@@ -397,7 +398,7 @@ class FallCriteria:
         trunk_roll_rad, trunk_pitch_rad : float
             Trunk attitude (see :func:`quat_to_rpy`). A non-finite value counts as a fall.
         base_height_m : float or None
-            Trunk (base) height; required when ``min_base_height_m`` is set.
+            The base frame's (hips') height; required when ``min_base_height_m`` is set.
 
         Returns
         -------
@@ -415,8 +416,18 @@ class FallCriteria:
             if base_height_m is None:
                 raise ValueError("base_height_m is required when min_base_height_m is set")
             if not base_height_m >= self.min_base_height_m:
-                return f"trunk height {base_height_m:.2f} m below {self.min_base_height_m:.2f}"
+                return f"hip height {base_height_m:.2f} m below {self.min_base_height_m:.2f}"
         return None
+
+    @staticmethod
+    def direction(trunk_roll_rad: float, trunk_pitch_rad: float, upright_pitch_rad: float = 0.0) -> str:
+        """Which way a fall goes, from the trunk's attitude when it is detected: ``"lateral"``
+        when the roll is the larger deviation from upright (or not finite), else ``"forward"``
+        (pitched nose-down past its upright lean) or ``"backward"``."""
+        pitch = trunk_pitch_rad - upright_pitch_rad
+        if not abs(trunk_roll_rad) < abs(pitch):  # also true for nan
+            return "lateral"
+        return "forward" if pitch > 0 else "backward"
 
 
 def detect_fall(

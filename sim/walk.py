@@ -40,7 +40,7 @@ from sim.kinematics import Kinematics
 from sim.linalg import clamp
 from sim.model import arm_ik, leg_ik
 from sim.sensors import Sensors, rpy_from_matrix
-from sim.truth import convex_hull_2d, fore_aft_ratio, pivot_polygon, stability_margin
+from sim.truth import FallCriteria, convex_hull_2d, fore_aft_ratio, pivot_polygon, stability_margin
 from sim.world import GRAVITY, StancePose, World
 
 SIDES = ("l", "r")
@@ -106,6 +106,7 @@ class WalkResult:
     fall_phase: str | None = None
     fall_step: int | None = None
     fall_margin_m: float | None = None
+    fall_direction: str | None = None  # "lateral", "forward" or "backward" (FallCriteria.direction)
     duration_s: float = 0.0
 
     @property
@@ -167,6 +168,8 @@ class Walker:
         self.residual = 0.0
         self.unloaded_s = {"l": 0.0, "r": 0.0}  # how long each foot has been off the floor (sensed)
         self.fall: str | None = None
+        self.fall_direction: str | None = None
+        self._fall_criteria = FallCriteria(_ALLOWED_CONTACTS, cfg.fall.tilt_limit_rad, cfg.fall.min_hip_height_m)
 
     # -- geometry helpers ----------------------------------------------------------------------
 
@@ -636,20 +639,18 @@ class Walker:
         return self.sensors.read()
 
     def _fall_reason(self) -> str | None:
-        """Ground truth: a link other than a foot or a stick touches the floor, or the trunk tilts
-        or sinks beyond the configured limits."""
-        w, fall = self.world, self.cfg.fall
+        """Ground truth (:class:`sim.truth.FallCriteria`): a link other than a foot or a stick
+        touches the floor, or the trunk rolls, pitches or sinks beyond the configured limits; the
+        reason names the fall's direction (``lateral``, ``forward`` or ``backward`` from the trunk's
+        attitude), which :attr:`fall_direction` keeps."""
+        w = self.world
         origin, rot = w.link_frame("trunk")
-        rpy = rpy_from_matrix(rot)
-        touching = w.touching_links() - _ALLOWED_CONTACTS
-        if touching:
-            return f"{sorted(touching)[0]} touched the ground"
-        tilt = max(abs(rpy[0]), abs(rpy[1]))
-        if tilt > fall.tilt_limit_rad:
-            return f"trunk tilt {tilt:.2f} rad beyond {fall.tilt_limit_rad}"
-        if origin[2] < fall.min_hip_height_m:
-            return f"hip height {origin[2]:.2f} m below {fall.min_hip_height_m}"
-        return None
+        roll, pitch, _ = rpy_from_matrix(rot).tolist()
+        reason = self._fall_criteria.check(w.touching_links(), roll, pitch, float(origin[2]))
+        if reason is None:
+            return None
+        self.fall_direction = FallCriteria.direction(roll, pitch, self.s.trunk_pitch_rad)
+        return f"{self.fall_direction} fall: {reason}"
 
     def run(self, max_steps: int, max_time_s: float = 120.0, on_tick=None) -> WalkResult:
         """Walk until ``max_steps`` steps have landed, a fall, or ``max_time_s``.
@@ -667,6 +668,7 @@ class Walker:
                 result.fall_phase = self.phase.value
                 result.fall_step = len(self.steps)
                 result.fall_margin_m = round(self.margin, 4)
+                result.fall_direction = self.fall_direction
                 break
             if sum(1 for r in self.steps if r.landed) >= max_steps:
                 break

@@ -282,13 +282,29 @@ CRITERIA = FallCriteria(frozenset({"foot_l", "foot_r", "tip_l", "tip_r"}), tilt_
         ([], 0.0, 0.93, 0.9, "trunk pitch 0.93 rad beyond 0.80"),
         ([], -0.85, 0.0, 0.9, "trunk roll -0.85 rad beyond 0.80"),
         ([], math.nan, 0.0, 0.9, "trunk roll nan rad beyond 0.80"),
-        ([], 0.0, 0.0, 0.41, "trunk height 0.41 m below 0.50"),
+        ([], 0.0, 0.0, 0.41, "hip height 0.41 m below 0.50"),
         (["shank_r"], 0.0, 1.2, 0.2, "link 'shank_r' touched the ground"),  # contacts are reported first
     ],
 )
 def test_fall_criteria(touching, roll, pitch, height, reason):
     assert CRITERIA.check(touching, roll, pitch, height) == reason
     assert detect_fall(touching, CRITERIA.allowed_contacts, roll, pitch, 0.8, height, 0.5) == reason
+
+
+@pytest.mark.parametrize(
+    ("roll", "pitch", "upright", "direction"),
+    [
+        (0.85, 0.1, 0.1, "lateral"),
+        (-0.3, 0.1, 0.1, "lateral"),  # a sideways lean with the trunk at its upright pitch
+        (0.1, 0.93, 0.1, "forward"),  # pitch > 0 is nose down
+        (0.1, -0.6, 0.1, "backward"),
+        (0.5, 0.9, 0.1, "forward"),  # pitched 0.8 past upright, rolled 0.5
+        (0.5, 0.5, 0.1, "lateral"),  # rolled 0.5, pitched 0.4 past upright
+        (math.nan, 0.0, 0.0, "lateral"),
+    ],
+)
+def test_fall_direction_is_the_larger_deviation_from_upright(roll, pitch, upright, direction):
+    assert FallCriteria.direction(roll, pitch, upright) == direction
 
 
 def test_fall_criteria_validation():

@@ -157,3 +157,20 @@ def test_a_stick_goal_beyond_the_arms_reach_is_clamped_and_counted():
         walker._next_step.intention_m = -0.5  # behind where the stick stands: it still moves on
         assert walker._stick_goal("l", start)[0] == pytest.approx(start[0] + cfg.patient.stick_min_advance_m)
         assert walker.clamps == {"reach": 1, "advance": 1}
+
+
+@pytest.mark.parametrize(("mode", "directions"), [("full3d", {"lateral"}), ("sagittal", {"forward", "backward"})])
+def test_a_stick_lifted_without_the_weight_shift_falls_and_the_fall_says_which_way(monkeypatch, mode, directions):
+    """Issue 30: the patient lifts a stick without first shifting its weight into the support that
+    remains. In 3-D the body rolls toward the lifted stick (docs/SIM.md item 13): a lateral fall
+    at the first stick move; in the sagittal mode the plane spring holds the roll, and the fall,
+    later, goes forward or backward."""
+    monkeypatch.setattr(Walker, "_shift_target", lambda self: self.com_target.copy())  # no shift
+    monkeypatch.setattr(Walker, "_shift_margin", lambda self: 1.0)  # and it feels safe to lift at once
+    cfg = dataclasses.replace(SIM, mode=mode)
+    result = walk(cfg, dataclasses.replace(cfg.gait, step_length_m=0.10), seed=0, max_steps=4, max_time_s=30)
+    assert result.fell and result.fall_direction in directions, result.fall_reason
+    assert result.fall_reason.startswith(f"{result.fall_direction} fall: ")
+    if mode == "full3d":
+        assert result.steps_completed == 0 and result.fall_phase in ("shift", "sticks")
+        assert "trunk roll" in result.fall_reason
