@@ -1,5 +1,6 @@
 """Controller speed while walking: its work per tick, the lock-step pipeline against the bare
-simulation, and the real-time loop's wake-up lateness beside a plain sleep loop, all in one run.
+physics and the bare simulation, and the real-time loop's wake-up lateness beside a plain sleep
+loop, all in one run.
 
 Every figure comes from a walk: the controller brings the nodes up, walks ``--cycles`` gait
 cycles (sagittal mode, seed 0, the compensated step length) and the figures are taken over the
@@ -9,7 +10,9 @@ ticks in which it walks (DOUBLE_SUPPORT, SWING_LEFT, SWING_RIGHT), not the start
    (SYNC, reading and checking the nodes' frames, supervision, estimation, FSM, gait, envelope,
    encoding) against the four emulated nodes and the simulation. The controller's own work per
    tick excludes the time the nodes take; the pipeline's walking ticks per second are set beside
-   the bare simulation tick (:class:`nodes.host.SimTickTimer`) timed over the same ticks.
+   the bare physics (PyBullet's step, :class:`sim.world.PhysicsTimer`) and the bare simulation
+   tick (:class:`nodes.host.SimTickTimer`), both timed over the same ticks; ``--repeats`` walks,
+   each figure their median.
 2. Real time: the controller's loop on absolute 20 ms deadlines walks ``--realtime-cycles`` with
    the nodes in real time in a thread of the same process (the nodes' physics competes with the
    loop for the interpreter lock, a harsher setting than the two processes of a deployment), then
