@@ -60,7 +60,9 @@ def spring_law(stiffness: np.ndarray, rest: np.ndarray) -> np.ndarray:
 
 
 class JointImpedance:
-    """Impedance loops of ``n`` joints, vectorised; ``torques(q, qd)`` runs once per physics step.
+    """Impedance loops of ``n`` joints, vectorised: each command sets its joint's column of a
+    (7, n) law, which :func:`law_torques` turns into torques once per physics step
+    (:meth:`torques` for these joints alone).
 
     ``law``, if given, is a (7, n) view into a larger law array whose torques the owner computes
     at once with :func:`law_torques` (the world's every torque-driven joint in one step); it must
@@ -125,22 +127,24 @@ class JointImpedance:
         if rejected:
             positions, torques, cols = positions[ok], torques[ok], ok
             self.rejected += rejected
-        g = self.gains
         self.mode[cols] = int(Mode.TRACK)
         self.target[cols], self.velocity_ff[cols], self.torque_ff[cols], self.limit[cols] = positions, 0.0, torques, self.rated[cols]
-        law = self._law
-        law[0, cols], law[1, cols], law[2, cols], law[3, cols] = g.stiffness[cols], positions, g.damping[cols], 0.0
-        law[4, cols], law[5, cols], law[6, cols] = torques, -self.rated[cols], self.rated[cols]
+        self._track_law(cols)
         return rejected
 
+    def _track_law(self, cols: int | slice | np.ndarray) -> None:
+        """The track loop ``K (q* - q) + D (qd* - qd) + tau_ff`` within the command's limit, for
+        the joints ``cols`` (one index, or several at once) from their commands."""
+        g, law, limit = self.gains, self._law, self.limit[cols]
+        law[0, cols], law[1, cols], law[2, cols] = g.stiffness[cols], self.target[cols], g.damping[cols]
+        law[3, cols], law[4, cols], law[5, cols], law[6, cols] = self.velocity_ff[cols], self.torque_ff[cols], -limit, limit
+
     def _set_law(self, i: int) -> None:
-        """Joint ``i``'s loop coefficients for its mode. Track: ``K (q* - q) + D (qd* - qd) + tau_ff``
-        within the command's limit; hold and quick stop: ``K_h (q_latched - q) + D_h (0 - qd)``
+        """Joint ``i``'s loop coefficients for its mode. Track: :meth:`_track_law`; hold and quick stop: ``K_h (q_latched - q) + D_h (0 - qd)``
         (the same value as ``... - D_h qd``) within the hold limit; disable: zero gains, zero limit."""
         g, mode = self.gains, int(self.mode[i])
         if mode == Mode.TRACK:
-            limit = self.limit[i]
-            self._law[:, i] = (g.stiffness[i], self.target[i], g.damping[i], self.velocity_ff[i], self.torque_ff[i], -limit, limit)
+            self._track_law(i)
         elif mode == Mode.HOLD or mode == Mode.QUICK_STOP:
             limit = min(g.hold_torque_limit[i], self.rated[i])
             self._law[:, i] = (g.hold_stiffness[i], self.hold_position[i], g.hold_damping[i], 0.0, 0.0, -limit, limit)

@@ -79,12 +79,13 @@ def _walk_summary(outcome: Any, states: list[str]) -> dict[str, Any]:
     }
 
 
-def _max_ticks(args: argparse.Namespace, cycles: int) -> int:
+def _max_ticks(max_ticks: int | None, cycles: int) -> int:
+    """Ticks a walk of ``cycles`` may take: the walk's own stall limit, or ``max_ticks`` if fewer."""
     from protocol.catalog import TICK_MS
     from tools.pipeline import default_max_time_s
 
     limit = int(default_max_time_s(cycles) * 1000 / TICK_MS)
-    return limit if args.max_ticks is None else min(limit, args.max_ticks)
+    return limit if max_ticks is None else min(limit, max_ticks)
 
 
 def _lockstep(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
@@ -208,8 +209,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if cfg.sim is None or cfg.nodes is None or cfg.controller is None:
         raise ConfigError("controller, sim and nodes sections required by the controller benchmark", key="controller")
     cfg = with_overrides(cfg, {"sim.mode": MODE})
-    lockstep = median_of_runs([_lockstep(cfg, args.cycles, _max_ticks(args, args.cycles)) for _ in range(args.repeats)])
-    realtime = _realtime(cfg, args.realtime_cycles, _max_ticks(args, args.realtime_cycles))
+    lockstep = median_of_runs([_lockstep(cfg, args.cycles, _max_ticks(args.max_ticks, args.cycles)) for _ in range(args.repeats)])
+    realtime = _realtime(cfg, args.realtime_cycles, _max_ticks(args.max_ticks, args.realtime_cycles))
     plain_ticks = realtime["walk"]["ticks"]
     return {
         "benchmark": "controller",

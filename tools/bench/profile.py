@@ -134,14 +134,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if cfg.sim is None or cfg.nodes is None or cfg.controller is None:
         raise ConfigError("controller, sim and nodes sections required by the profile", key="controller")
     cfg = with_overrides(cfg, {"sim.mode": MODE})
-    args.max_ticks = None
+    max_ticks = _max_ticks(None, args.cycles)  # the walk's own stall limit
     with _timed(MonotonicClock()) as spent:
-        timed_walk = _lockstep(cfg, args.cycles, _max_ticks(args, args.cycles))
+        timed_walk = _lockstep(cfg, args.cycles, max_ticks)
     timed_ticks = timed_walk["walk"]["ticks"]
     pipeline_us = timed_walk["us_per_walking_tick"]["pipeline"]
     profiler = cProfile.Profile()
     profiler.enable()
-    walk = _lockstep(cfg, args.cycles, _max_ticks(args, args.cycles))
+    walk = _lockstep(cfg, args.cycles, max_ticks)
     profiler.disable()
     if args.out:
         profiler.dump_stats(args.out)
