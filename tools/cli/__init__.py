@@ -28,6 +28,7 @@ SUBCOMMANDS = {
     "trace": "tools.cli.trace",
     "experiment": "tools.cli.experiment",
     "soak": "tools.cli.soak",
+    "view": "tools.cli.view",
 }
 
 

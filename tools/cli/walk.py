@@ -44,7 +44,66 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--log", metavar="FILE", help="the controller's per-tick telemetry as JSON lines")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--quiet", action="store_true", help="no status line")
+    v = p.add_argument_group("live view (docs/VIEW.md)")
+    v.add_argument("--view", action="store_true",
+                   help="serve the live view of this walk (aider-exo view, listening to the walk's bus) and print its address")
+    v.add_argument("--view-port", type=int, default=8050, metavar="PORT", help="--view: port on 127.0.0.1 (default 8050; 0: any free one)")
+    v.add_argument("--pace", type=float, default=1.0, metavar="X",
+                   help="--view: walk at X times real time, so it can be watched (default 1; 0: as fast as it computes)")
+    v.add_argument("--linger", type=positive_float, default=0.0, metavar="S",
+                   help="--view: keep serving the page S seconds after the walk ends (default 0)")
     p.set_defaults(func=run)
+
+
+class LiveView:
+    """``--view``: the passive listener on the walk's bus and its web server in background threads,
+    and the pace that lets a person watch a lock-step walk (which otherwise runs as fast as it computes)."""
+
+    def __init__(self, cfg: Any, bus_cfg: Any, *, port: int, pace: float) -> None:
+        from protocol.bus import open_bus
+        from tools.view import make_feed
+        from tools.view.server import ServerThread, ViewServer
+        from tools.view.source import BusReader, ListenOnly
+
+        self.feed = make_feed(cfg)
+        self.bus = ListenOnly(open_bus(bus_cfg))  # opened before the walk: it sees the boot-ups
+        self.reader = BusReader(self.bus, self.feed, poll_s=0.05)
+        self.server = ServerThread(ViewServer(self.feed, port=port, title=f"walk on {bus_cfg.interface}:{bus_cfg.channel}"))
+        from protocol.clock import MonotonicClock
+
+        self.pace = pace
+        self.clock = MonotonicClock()
+        self._t0_ns: int | None = None
+
+    def start(self) -> str:
+        self.reader.start()
+        try:
+            return self.server.start_serving()
+        except BaseException:
+            self.reader.stop()
+            self.bus.shutdown()
+            raise
+
+    def tick(self, tick: int) -> None:
+        """Hold the walk to ``pace`` times real time (tick ``tick`` at 20 ms per tick)."""
+        if self.pace <= 0:
+            return
+        from protocol.catalog import TICK_MS
+
+        tick_ns = int(TICK_MS * 1_000_000 / self.pace)
+        if self._t0_ns is None:
+            self._t0_ns = self.clock.now_ns() - tick * tick_ns
+        self.clock.sleep_until(self._t0_ns + (tick + 1) * tick_ns)
+
+    def close(self, linger_s: float = 0.0) -> dict[str, Any]:
+        if linger_s > 0:
+            self.clock.sleep_until(self.clock.now_ns() + int(linger_s * 1e9))
+        self.reader.stop()
+        self.reader.join(timeout=2.0)
+        self.server.close()
+        self.bus.shutdown()
+        return {"url": self.server.server.url, "frames": self.feed.model.frames, "server": self.server.server.stats.as_dict(),
+                "sends_refused": self.bus.sends_refused}
 
 
 class StatusLine:
@@ -104,8 +163,18 @@ def run(args: argparse.Namespace) -> int:
                                 patients_dir=args.patients_dir, rng=rng)
     if args.learn and not args.patient:
         print("aider-exo walk: warning: learning without --patient: what is learnt is not kept", file=sys.stderr)
+    if args.pace < 0:
+        raise ConfigError(f"--pace {args.pace}: give 0 (as fast as it computes) or a positive factor", key="pace")
     status = StatusLine(not args.quiet)
     telemetry = None
+    channel = f"aider-walk-{args.seed}-{id(args)}"
+    view = None
+    if args.view:
+        from tools.pipeline import walk_config
+
+        view = LiveView(cfg, cfg.bus if two_processes else walk_config(cfg, args.mode, channel).bus,
+                        port=args.view_port, pace=args.pace)
+        print(f"aider-exo walk: live view at {view.start()}", file=sys.stderr, flush=True)
     recorder = camera = None
     if args.render:
         from sim.render import Camera, Recorder
@@ -113,21 +182,30 @@ def run(args: argparse.Namespace) -> int:
         camera = Camera(target_xyz=(0.3, 0.0, 0.7), distance_m=2.8, yaw_deg=20.0, pitch_deg=-10.0, width_px=320, height_px=240)
         recorder = Recorder(every_n=5)
     nodes_report: dict[str, Any] | None = None
+    view_report = None
+
+    def watched(result: Any, core: Any) -> None:
+        status(result, core)
+        if view is not None:
+            view.tick(result.tick)
+
     try:
         telemetry = TelemetryLog(args.log) if args.log else None  # in the try: the saver is closed if it fails
         if two_processes:
-            outcome, nodes_report = _walk_two_processes(args, cfg, policy, status, telemetry)
+            outcome, nodes_report = _walk_two_processes(args, cfg, policy, watched, telemetry)
         else:
             def on_tick(result: Any, core: Any, host: Any) -> None:
-                status(result, core)
+                watched(result, core)
                 if recorder is not None:
                     x = float(host.world.link_frame("trunk")[0][0])
                     recorder.maybe_capture(host.world.client, host.patient.t, camera.follow(x))
 
             outcome = walk(cfg, cycles=args.steps, seed=args.seed, mode=args.mode, policy=policy,
-                           max_time_s=args.max_time, on_tick=on_tick, telemetry=telemetry)
+                           max_time_s=args.max_time, on_tick=on_tick, telemetry=telemetry, channel=channel)
     finally:
         status.close()
+        if view is not None:
+            view_report = view.close(args.linger)
         log_report = telemetry.close() if telemetry is not None else None
         if saver is not None:
             saver.close()
@@ -139,6 +217,8 @@ def run(args: argparse.Namespace) -> int:
         summary["patient_file"] = {"path": str(saver.path), "writes": saver.writes, "errors": saver.errors}
     if nodes_report is not None:
         summary["nodes"] = nodes_report
+    if view_report is not None:
+        summary["view"] = view_report
     if recorder is not None and len(recorder):
         args.render.mkdir(parents=True, exist_ok=True)
         summary["render"] = {
@@ -184,7 +264,7 @@ def _summary_text(s: dict[str, Any]) -> str:
     return text
 
 
-def _walk_two_processes(args: argparse.Namespace, cfg: Any, policy: Any, status: StatusLine, telemetry: Any):
+def _walk_two_processes(args: argparse.Namespace, cfg: Any, policy: Any, status: Any, telemetry: Any):
     """The node boards as ``aider-exo nodes`` in a second process on the same bus (SocketCAN or UDP multicast)."""
     from config.loader import AiderError
     from protocol.bus import open_bus

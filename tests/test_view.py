@@ -1,0 +1,289 @@
+"""The live view (``aider-exo view``): its model from a lock-step walk's frames (the controller's
+own estimates, gait states, steps, node health, rejections), its server (snapshots over a
+WebSocket, token, malformed requests, slow browsers, ten at once), and the command."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+
+import numpy as np
+import pytest
+from aiohttp import WSMsgType
+from aiohttp.test_utils import TestClient, TestServer
+
+from config import default_config_path, load_config
+from config.loader import AiderError
+from protocol.bus import virtual_bus
+from protocol.catalog import default_catalog
+from protocol.codec import Codec
+from protocol.e2e import Transmitter
+from tools.cli import main
+from tools.pipeline import walk
+from tools.trace.reader import Frame, ReadReport, read_frames
+from tools.view import make_feed
+from tools.view.model import SERIES
+from tools.view.server import Client, ViewServer, check_bind
+from tools.view.source import Feed, ListenOnly
+
+CFG = load_config(default_config_path())
+
+
+@pytest.fixture(scope="module")
+def walked():
+    """The frames of a one-cycle lock-step walk as a listener on its bus saw them, and the
+    controller's own estimate of every tick."""
+    channel = "view-walk"
+    estimates: dict[int, np.ndarray] = {}
+    with virtual_bus(channel) as listener:
+        outcome = walk(CFG, cycles=1, seed=0, channel=channel, compare_ratio=False,
+                       on_tick=lambda r, core, host: estimates.__setitem__(r.tick, None if r.estimate is None else r.estimate.com))
+        frames = []
+        while (msg := listener.recv(0)) is not None:
+            frames.append(Frame.from_message(msg))
+    assert outcome.cycles_completed == 1 and not outcome.fell
+    return frames, estimates
+
+
+def _fed(frames, upto=None):
+    feed = make_feed(CFG)
+    for f in frames[:upto]:
+        feed.put(f)
+    return feed
+
+
+def test_the_model_runs_the_controllers_estimator_on_the_bus_and_gets_its_estimates(walked):
+    frames, estimates = walked
+    model = make_feed(CFG).model
+    sync = default_catalog().by_name("SYNC").frame_id
+    compared = 0
+    for f in frames:
+        if f.arbitration_id == sync and model.tick is not None and model.tick in estimates:
+            tick = model.tick
+            model.feed(f)  # the next SYNC closes the tick: the view's estimate of it
+            if estimates[tick] is not None:
+                np.testing.assert_allclose(model.estimate.com, estimates[tick], rtol=0, atol=1e-12)
+                compared += 1
+            continue
+        model.feed(f)
+    assert compared > 500  # every tick of the walk with its sensors in
+
+
+def test_the_model_follows_the_gait_counts_steps_and_keeps_the_health_of_every_node(walked):
+    frames, _ = walked
+    model = make_feed(CFG).model
+    states = []
+    for f in frames:
+        model.feed(f)
+        if not states or states[-1] != model.gait_state:
+            states.append(model.gait_state)
+    assert {"DOUBLE_SUPPORT", "SWING_LEFT", "SWING_RIGHT"} <= set(states)
+    assert model.steps == 2 and model.landings >= 1
+    placed = [s["length_m"] for s in model.landed]
+    assert placed and all(0.05 < x < 0.3 for x in placed)  # feet apart at landing, from the estimator's ankles
+    snap = model.snapshot()
+    assert snap["receiver"]["accepted"] == len(frames) and snap["receiver"]["rejected_by_reason"] == {}
+    assert {n["nmt"] for n in snap["nodes"].values()} == {"OPERATIONAL"}
+    assert all(n["heartbeat_age_s"] <= 0.12 and n["drive_state"] == "TRACK" for n in snap["nodes"].values())
+    assert 0.05 < snap["bus_load"] < 0.25
+    est = snap["estimate"]
+    assert len(est["support"]) >= 3 and 0.7 < est["com"][2] - est["floor_z"] < 1.2  # the origin: midway between the hips
+
+
+def test_a_swing_has_its_commanded_and_measured_ankle_path(walked):
+    frames, _ = walked
+    model = make_feed(CFG).model
+    seen = 0
+    for f in frames:
+        model.feed(f)
+        if model.swing_leg is not None:
+            seen = max(seen, len(model.paths["commanded"]))
+            cmd, meas = model.paths["commanded"], model.paths["measured"]
+    assert seen > 20
+    assert len(cmd) == len(meas)
+    # the measured ankle follows the commanded one within a few centimetres
+    assert max(abs(a[0] - b[0]) + abs(a[1] - b[1]) for a, b in zip(cmd, meas)) < 0.08
+    assert max(z for _, z in cmd) > 0.1  # the swing lifts the foot
+
+
+def test_the_series_are_numbered_so_a_client_gets_only_what_is_new_and_ten_seconds_at_most(walked):
+    frames, _ = walked
+    model = _fed(frames).model
+    full = model.snapshot()["series"]
+    assert full["fields"] == ["n", "t", *SERIES]
+    samples = full["samples"]
+    assert len(samples) == 500  # 10 s of 20 ms ticks
+    assert samples[-1][1] - samples[0][1] == pytest.approx(9.98, abs=0.03)
+    last = samples[-1][0]
+    assert model.snapshot(last)["series"]["samples"] == []
+    assert [s[0] for s in model.snapshot(last - 3)["series"]["samples"]] == [last - 2, last - 1, last]
+
+
+def test_rejected_frames_are_counted_by_reason_and_an_emcy_is_listed_with_its_code():
+    codec = Codec()
+    model = make_feed(CFG).model
+    tx = Transmitter(codec)
+    name = "EMCY_RH"
+    msg = tx.message(name, (0x2310, 1, 7))
+    model.feed(Frame(1.0, msg.arbitration_id, bytes(msg.data)))
+    bad = bytearray(tx.message(name, (0x2310, 1, 7)).data)
+    bad[0] ^= 0xFF  # the CRC
+    model.feed(Frame(1.1, msg.arbitration_id, bytes(bad)))
+    model.feed(Frame(1.2, 0x7FF, b"\x00"))
+    snap = model.snapshot()
+    assert snap["emcy"] == [{"t": 0.0, "node": "RIGHT_HIP", "code": "OVER_CURRENT", "register": 1, "detail": 7}]
+    assert snap["receiver"]["rejected_by_reason"] == {"bad_crc": 1, "unknown_id": 1}
+    assert snap["frames"] == 3 and snap["t"] == 0 and snap["tick"] is None  # no SYNC yet: the time of tick 0
+
+
+def test_the_view_cannot_send_on_its_bus():
+    with virtual_bus("view-listen-only") as raw:
+        bus = ListenOnly(raw)
+        with pytest.raises(AiderError, match="never sends"):
+            bus.send(None)
+        assert bus.sends_refused == 1
+
+
+# -- server ----------------------------------------------------------------------------------------
+
+
+def test_off_loopback_the_view_needs_a_token():
+    check_bind("127.0.0.1", None)
+    check_bind("::1", None)
+    check_bind("0.0.0.0", "s3cret")
+    with pytest.raises(AiderError, match="--token"):
+        check_bind("0.0.0.0", None)
+    with pytest.raises(AiderError, match="--token"):
+        ViewServer(Feed(make_feed(CFG).model), host="192.168.1.5")
+
+
+def _serve(feed, check, **kwargs):
+    async def run():
+        server = ViewServer(feed, port=0, **kwargs)
+        async with TestClient(TestServer(server.app())) as client:
+            task = asyncio.create_task(server._broadcast())
+            try:
+                await check(server, client)
+            finally:
+                task.cancel()
+
+    asyncio.run(run())
+
+
+async def _receive(ws, n):
+    out = []
+    while len(out) < n:
+        msg = await asyncio.wait_for(ws.receive(), 5)
+        assert msg.type == WSMsgType.TEXT
+        out.append(json.loads(msg.data))
+    return out
+
+
+def test_the_page_and_its_assets_are_served_and_a_browser_gets_a_full_snapshot_then_deltas(walked):
+    feed = _fed(walked[0])
+
+    async def check(server, client):
+        page = await client.get("/")
+        assert page.status == 200 and "view.js" in await page.text()
+        js = await client.get("/static/view.js")
+        assert js.status == 200 and "WebSocket" in await js.text()
+        assert (await client.get("/static/../../cli/view.py")).status in (403, 404)
+        ws = await client.ws_connect("/ws")
+        first, second = await _receive(ws, 2)
+        assert first["kind"] == "full" and len(first["series"]["samples"]) == 500
+        assert second["kind"] == "delta" and second["series"]["samples"] == []  # nothing new on the bus
+        assert first["gait"]["steps"] == 2 and first["stale_s"] is not None
+        await ws.close()
+
+    _serve(feed, check)
+
+
+def test_with_a_token_a_browser_without_it_is_refused_and_counted(walked):
+    feed = _fed(walked[0], 2000)
+
+    async def check(server, client):
+        resp = await client.get("/ws")
+        assert resp.status == 403
+        ws = await client.ws_connect("/ws?token=s3cret")
+        (snap,) = await _receive(ws, 1)
+        assert snap["frames"] == 2000
+        assert server.stats.refused == 1 and server.stats.connects == 1
+        await ws.close()
+
+    _serve(feed, check, token="s3cret")
+
+
+def test_malformed_client_messages_are_ignored_and_counted(walked):
+    feed = _fed(walked[0], 500)
+
+    async def check(server, client):
+        ws = await client.ws_connect("/ws")
+        await _receive(ws, 1)
+        for text in ("not json", "[1, 2]", '{"type": "write_frame", "id": 513}', '{"type": "ping"}'):
+            await ws.send_str(text)
+        await ws.send_bytes(b"\x00\x01")
+        await ws.send_str('{"type": "resync"}')
+        for _ in range(20):
+            snaps = await _receive(ws, 1)
+            if snaps[0]["kind"] == "full":
+                break
+        else:
+            pytest.fail("no full snapshot after a resync")
+        assert server.stats.malformed == 4 and server.stats.resyncs == 1
+        await ws.close()
+
+    _serve(feed, check)
+
+
+def test_a_browser_that_does_not_keep_up_loses_its_oldest_snapshots_and_gets_a_full_one(walked):
+    feed = _fed(walked[0])
+    server = ViewServer(feed, port=0, queue_len=2)
+
+    async def run():
+        slow, quick = Client(asyncio.Queue(2)), Client(asyncio.Queue(100))
+        server.clients |= {slow, quick}
+        task = asyncio.create_task(server._broadcast())
+        await asyncio.sleep(0.3)  # about 7 rounds; nobody takes from the queues
+        task.cancel()
+        return slow, quick
+
+    slow, quick = asyncio.run(run())
+    assert quick.dropped == 0 and quick.queue.qsize() >= 5
+    assert slow.dropped >= 3 and server.stats.dropped == slow.dropped
+    kinds = [json.loads(slow.queue.get_nowait())["kind"] for _ in range(slow.queue.qsize())]
+    assert "full" in kinds and len(kinds) <= 2
+
+
+def test_ten_browsers_are_served_at_once(walked):
+    feed = _fed(walked[0])
+
+    async def check(server, client):
+        sockets = [await client.ws_connect("/ws") for _ in range(10)]
+        got = await asyncio.gather(*(_receive(ws, 4) for ws in sockets))
+        assert all(len(g) == 4 and g[0]["kind"] == "full" for g in got)
+        assert server.stats.clients == 10
+        for ws in sockets:
+            await ws.close()
+
+    _serve(feed, check)
+
+
+# -- the command -----------------------------------------------------------------------------------
+
+
+def test_the_command_refuses_other_addresses_without_a_token_and_the_in_process_bus(capsys):
+    assert main(["view", "--host", "0.0.0.0", "--duration", "1"]) == 1
+    assert "give --token" in capsys.readouterr().err
+    assert main(["view", "--bus", "virtual", "--duration", "1", "--port", "0"]) == 1
+    assert "aider-exo walk --view" in capsys.readouterr().err
+
+
+def test_the_view_plays_a_recorded_trace(tmp_path, capsys):
+    trace = tmp_path / "walk.log"
+    assert main(["trace", "record", str(trace), "--walk", "1", "--seed", "2"]) == 0
+    capsys.readouterr()
+    assert main(["view", "--trace", str(trace), "--speed", "0", "--port", "0", "--duration", "3", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    recorded = len(list(read_frames([trace], ReadReport())))
+    assert recorded > 5000 and out["frames"] == recorded and out["receiver"]["rejected_by_reason"] == {}
+    assert out["gait"]["steps"] == 2 and out["sends_refused"] == 0 and out["reader_error"] is None
