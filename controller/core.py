@@ -46,7 +46,7 @@ from controller.gait import GaitPlanner
 from controller.policy import StepPolicy, StepRecord
 from protocol.catalog import TICK_MS, Catalog, default_catalog
 from protocol.codec import Decoded, RejectReason, Rejection
-from protocol.enums import DriveState, GaitState, JointMode, NmtCommand, NmtState
+from protocol.enums import DriveState, GaitState, JointMode, NmtCommand, NmtState, PolicyMode
 
 # Rejections that say a node's frame was damaged, masqueraded or out of order (F6-F8). Not these: a
 # repeated counter (a duplicate, F5, or a frozen node, F9), a wrong length or a value out of the
@@ -79,7 +79,7 @@ class TickResult:
     tick: int
     state: GaitState
     frames: list[tuple[str, tuple]]  # (message name, values in signal order) to send after the tick's work
-    # (the controller's heartbeat with ``state`` is the loop's, on the DBC's schedule)
+    # (the cyclic heartbeat and telemetry: :meth:`ControllerCore.scheduled_frames`, after these)
     estimate: Estimate | None
     events: list[str] = field(default_factory=list)
     landed: StepRecord | None = None  # the step that landed this tick
@@ -96,6 +96,7 @@ class ControllerCore:
         catalog = catalog or default_catalog()
         self.node_names = catalog.joint_nodes  # left hip, left knee, right hip, right knee
         self._command_of = {n: catalog.message("JOINT_COMMAND", n).name for n in self.node_names}
+        self._scheduled = [catalog.by_name(n) for n in ("CONTROLLER_HEARTBEAT", "CONTROLLER_STEP", "CONTROLLER_LEARNING")]
         self.safety = safety = cfg.safety
         self.fsm = GaitFsm(reset_healthy_ticks=safety.reset_healthy_ticks)
         self.estimator = StateEstimator(cfg.body, cfg.legs)
@@ -530,6 +531,40 @@ class ControllerCore:
                           + (f" (clamped: {goal.reason})" if goal.clamped else ""))
         return finished
 
+    # -- telemetry ---------------------------------------------------------------------------------
+
+    def scheduled_frames(self, tick: int, state: GaitState) -> list[tuple[str, tuple]]:
+        """The controller's cyclic frames of tick ``tick`` besides SYNC, on the DBC's schedule,
+        sent after the tick's commands: its heartbeat (the gait state) and the low-rate telemetry
+        that monitors read (the step, the compensation and the learner; no node acts on it)."""
+        heartbeat, step, learning = self._scheduled
+        out: list[tuple[str, tuple]] = []
+        if heartbeat.sent_in_tick(tick):
+            out.append((heartbeat.name, (int(state),)))
+        if step.sent_in_tick(tick):
+            out.append((step.name, _within(step, self._step_telemetry())))
+        if learning.sent_in_tick(tick):
+            out.append((learning.name, _within(learning, self._learning_telemetry())))
+        return out
+
+    def _step_telemetry(self) -> tuple:
+        last = self.steps[-1] if self.steps else None
+        before = self.steps[-2] if len(self.steps) > 1 else None
+        landed = next((st for st in reversed(self.steps) if st.landed), None)
+        policy = PolicyMode.__members__.get(self.policy.mode.upper(), PolicyMode.FIXED)  # an experiment's random lengths: no theta
+        return (len(self.steps), last.length_m if last else 0.0, before.placed_m if before else 0.0,
+                landed.mean_stick_force_n if landed else 0.0, int(policy))
+
+    def _learning_telemetry(self) -> tuple:
+        theta = next((st.theta for st in reversed(self.steps) if st.theta is not None), None)
+        if theta is None:
+            theta = self.policy.theta if self.policy.fixed_m is None and self.policy.learner is None else (0.0, 0.0)
+        learner = self.policy.learner
+        if learner is None:
+            return (theta[0], theta[1], 0, 0, 0, 0.0)
+        costs = self.policy.cycle_costs
+        return (theta[0], theta[1], learner.n_updates, learner.rollouts_in_batch, len(costs), costs[-1] if costs else 0.0)
+
     def _command(self, state: GaitState, frames: list[tuple[str, tuple]], m: Measurements | None) -> None:
         """The four joint commands, through the envelope: the gait's targets in the walking
         states, HOLD in every other (FAULTS.md I2)."""
@@ -567,6 +602,17 @@ class _Following:
 
     def reset(self) -> None:
         self.away[:], self.reading[:] = [0] * 4, [math.nan] * 4
+
+
+def _within(spec: Any, values: tuple) -> tuple:
+    """Telemetry values inside their DBC ranges (a value beyond one is shown at its end; not a
+    number, 0): a monitor's frame never fails to encode."""
+    out = []
+    for sig, v in zip(spec.signals, values):
+        v = float(v) if math.isfinite(v) else 0.0
+        v = min(max(v, sig.minimum), sig.maximum)
+        out.append(int(round(v)) if sig.is_integer or sig.choices is not None else v)
+    return tuple(out)
 
 
 def _leg_index(swing: GaitState) -> int:

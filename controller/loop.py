@@ -5,7 +5,7 @@ Lock-step: tick ``k`` sends SYNC(k), then waits until every operational node's f
 (its JOINT_STATUS and the sensors it sends per SYNC, from the DBC) are in (at most
 ``tick_timeout_s``; a node whose JOINT_STATUS does not come is counted, and the core's
 lost-node supervision makes it a fault after ``lost_ticks``), runs the core and sends its commands
-and, on the DBC's schedule, the controller's heartbeat. Before the nodes are operational a tick
+and, on the DBC's schedule, the controller's heartbeat and telemetry. Before the nodes are operational a tick
 waits ``boot_wait_s`` for frames. ``pump`` lets an in-process peer (the emulated nodes) run
 between the controller's sends and receives; across processes it is None.
 """
@@ -63,7 +63,6 @@ class LockstepLoop:
         self.pump = pump
         self.telemetry = telemetry
         self.clock = clock or MonotonicClock()
-        self.heartbeat = self.codec.spec("CONTROLLER_HEARTBEAT")
         self.stats = TickStats(self.tick_ns)
         self.report = LoopReport()
         self.tick = -1
@@ -172,8 +171,8 @@ class LockstepLoop:
         result = self.core.tick(k)
         for name, values in result.frames:
             self._send(name, values)
-        if self.heartbeat.sent_in_tick(k):
-            self._send("CONTROLLER_HEARTBEAT", (int(result.state),))
+        for name, values in self.core.scheduled_frames(k, result.state):
+            self._send(name, values)
         self.report.events += [f"tick {k}: {e}" for e in result.events]
         self.report.ticks += 1
         elapsed = self.clock.now_ns() - start_ns

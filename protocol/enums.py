@@ -109,6 +109,14 @@ class GaitState(enum.IntEnum):
     FAULT = 7
 
 
+class PolicyMode(enum.IntEnum):
+    """CONTROLLER_STEP.policy: where the controller's step lengths come from."""
+
+    FIXED = 0
+    COMPENSATED = 1
+    LEARNING = 2
+
+
 #: signal name -> the enumeration that names its values (same for every message carrying it)
 BY_SIGNAL: dict[str, type[enum.IntEnum]] = {
     "command": NmtCommand,
@@ -118,6 +126,7 @@ BY_SIGNAL: dict[str, type[enum.IntEnum]] = {
     "error_code": NodeError,
     "emcy_code": EmcyCode,
     "gait_state": GaitState,
+    "policy": PolicyMode,
 }
 
 

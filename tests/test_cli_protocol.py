@@ -13,7 +13,7 @@ from tools.cli import main
 def test_protocol_json_has_catalogue_and_load(capsys):
     assert main(["protocol", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
-    assert len(data["messages"]) == 26
+    assert len(data["messages"]) == 28
     sync = next(m for m in data["messages"] if m["name"] == "SYNC")
     assert sync["id_hex"] == "0x080" and sync["period_ms"] == 20 and sync["sender"] == "CONTROLLER"
     assert [s["name"] for s in sync["signals"]] == ["tick"]

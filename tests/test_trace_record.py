@@ -116,7 +116,7 @@ def test_cli_refuses_a_virtual_bus_without_walk(tmp_path, capsys):
 def test_sidecar_of_a_walk_recording(walk_log):
     meta = read_sidecar(walk_log)
     assert meta["seed"] == 3 and meta["bitrate_bit_s"] == 1_000_000 and len(meta["config_sha256"]) == 64
-    assert meta["software_version"].startswith("0.") and meta["dbc"]["protocol_version"] == 2
+    assert meta["software_version"].startswith("0.") and meta["dbc"]["protocol_version"] == 3
     assert meta["source"]["kind"] == "walk" and meta["source"]["operator"] == {"request_walk_tick": 0}
     assert meta["frames"] == len(_read([walk_log]))
 

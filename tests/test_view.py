@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -29,6 +30,12 @@ from tools.view.source import Feed, ListenOnly
 CFG = load_config(default_config_path())
 
 
+class Walked(NamedTuple):
+    frames: list
+    estimates: dict  # tick -> the controller's CoM estimate
+    steps: list  # the controller's step records
+
+
 @pytest.fixture(scope="module")
 def walked():
     """The frames of a one-cycle lock-step walk as a listener on its bus saw them, and the
@@ -42,7 +49,7 @@ def walked():
         while (msg := listener.recv(0)) is not None:
             frames.append(Frame.from_message(msg))
     assert outcome.cycles_completed == 1 and not outcome.fell
-    return frames, estimates
+    return Walked(frames, estimates, outcome.steps)
 
 
 def _fed(frames, upto=None):
@@ -53,7 +60,7 @@ def _fed(frames, upto=None):
 
 
 def test_the_model_runs_the_controllers_estimator_on_the_bus_and_gets_its_estimates(walked):
-    frames, estimates = walked
+    frames, estimates = walked.frames, walked.estimates
     model = make_feed(CFG).model
     sync = default_catalog().by_name("SYNC").frame_id
     compared = 0
@@ -70,7 +77,7 @@ def test_the_model_runs_the_controllers_estimator_on_the_bus_and_gets_its_estima
 
 
 def test_the_model_follows_the_gait_counts_steps_and_keeps_the_health_of_every_node(walked):
-    frames, _ = walked
+    frames = walked.frames
     model = make_feed(CFG).model
     states = []
     for f in frames:
@@ -90,8 +97,22 @@ def test_the_model_follows_the_gait_counts_steps_and_keeps_the_health_of_every_n
     assert len(est["support"]) >= 3 and 0.7 < est["com"][2] - est["floor_z"] < 1.2  # the origin: midway between the hips
 
 
+def test_the_controllers_telemetry_frames_give_its_steps_and_theta(walked):
+    frames = walked.frames
+    model = _fed(frames).model
+    step, learning = model.snapshot()["gait"]["controller_step"], model.snapshot()["learning"]
+    steps = walked.steps
+    assert step["index"] == len(steps) == 2 and step["policy"] == "COMPENSATED"
+    assert step["commanded_m"] == pytest.approx(steps[-1].length_m, abs=0.0005)
+    assert step["placed_m"] == pytest.approx(steps[-2].placed_m, abs=0.0005)
+    # the last landed step's cost (the walk may end before the next frame tells the final landing)
+    assert any(step["cost_n"] == pytest.approx(st.mean_stick_force_n, abs=0.25) for st in steps if st.landed)
+    assert (learning["alpha"], learning["xhat_com"]) == pytest.approx(steps[-1].theta, abs=0.005)
+    assert learning["update"] == 0 and learning["costs"] == []  # not learning
+
+
 def test_a_swing_has_its_commanded_and_measured_ankle_path(walked):
-    frames, _ = walked
+    frames = walked.frames
     model = make_feed(CFG).model
     seen = 0
     for f in frames:
@@ -107,7 +128,7 @@ def test_a_swing_has_its_commanded_and_measured_ankle_path(walked):
 
 
 def test_the_series_are_numbered_so_a_client_gets_only_what_is_new_and_ten_seconds_at_most(walked):
-    frames, _ = walked
+    frames = walked.frames
     model = _fed(frames).model
     full = model.snapshot()["series"]
     assert full["fields"] == ["n", "t", *SERIES]
@@ -180,7 +201,7 @@ async def _receive(ws, n):
 
 
 def test_the_page_and_its_assets_are_served_and_a_browser_gets_a_full_snapshot_then_deltas(walked):
-    feed = _fed(walked[0])
+    feed = _fed(walked.frames)
 
     async def check(server, client):
         page = await client.get("/")
@@ -199,7 +220,7 @@ def test_the_page_and_its_assets_are_served_and_a_browser_gets_a_full_snapshot_t
 
 
 def test_with_a_token_a_browser_without_it_is_refused_and_counted(walked):
-    feed = _fed(walked[0], 2000)
+    feed = _fed(walked.frames, 2000)
 
     async def check(server, client):
         resp = await client.get("/ws")
@@ -214,7 +235,7 @@ def test_with_a_token_a_browser_without_it_is_refused_and_counted(walked):
 
 
 def test_malformed_client_messages_are_ignored_and_counted(walked):
-    feed = _fed(walked[0], 500)
+    feed = _fed(walked.frames, 500)
 
     async def check(server, client):
         ws = await client.ws_connect("/ws")
@@ -236,7 +257,7 @@ def test_malformed_client_messages_are_ignored_and_counted(walked):
 
 
 def test_a_browser_that_does_not_keep_up_loses_its_oldest_snapshots_and_gets_a_full_one(walked):
-    feed = _fed(walked[0])
+    feed = _fed(walked.frames)
     server = ViewServer(feed, port=0, queue_len=2)
 
     async def run():
@@ -255,7 +276,7 @@ def test_a_browser_that_does_not_keep_up_loses_its_oldest_snapshots_and_gets_a_f
 
 
 def test_ten_browsers_are_served_at_once(walked):
-    feed = _fed(walked[0])
+    feed = _fed(walked.frames)
 
     async def check(server, client):
         sockets = [await client.ws_connect("/ws") for _ in range(10)]

@@ -11,7 +11,7 @@ controller's; a frame that comes after the read ended but before the controller 
 time run, is taken for the tick's: the wire does not show where a read ended.) They go through a
 :class:`protocol.e2e.Receiver` with the configured ``max_delta_counter`` into
 :meth:`ControllerCore.receive`, then :meth:`ControllerCore.tick` gives the tick's frames, plus
-the controller's heartbeat on the DBC's schedule, as the loop sends them. Both sides are compared
+the controller's heartbeat and telemetry on the DBC's schedule, as the loop sends them. Both sides are compared
 on the wire's grid (the new values encoded and decoded with the DBC), message by message and
 signal by signal; the first divergence names the tick, the message, the signal and both values.
 This is how a controller change is regression-tested against recorded sessions: the recorded
@@ -157,7 +157,6 @@ def resimulate(frames: Iterable[Frame], controller_cfg: Any, *, codec: Codec, ma
 
     core = ControllerCore(controller_cfg, policy=None)
     rx = Receiver(codec, max_delta_counter=max_delta_counter)
-    heartbeat = codec.spec("CONTROLLER_HEARTBEAT")
     report = ResimReport()
 
     def feed(frames: list[Frame], k: int, queued: bool) -> None:
@@ -177,8 +176,7 @@ def resimulate(frames: Iterable[Frame], controller_cfg: Any, *, codec: Codec, ma
         late = tick.late_frames
         result = core.tick(k)
         sent = list(result.frames)
-        if heartbeat.sent_in_tick(k):
-            sent.append((heartbeat.name, (int(result.state),)))
+        sent += core.scheduled_frames(k, result.state)
         recorded = []
         for frame in tick.controller_frames:
             decoded = codec.decode(frame.arbitration_id, frame.data)

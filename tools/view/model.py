@@ -6,6 +6,9 @@ each rejection counted by reason), and keeps what the page draws:
 
 * the controller's gait state (its heartbeat), the steps and gait cycles counted from the swings
   it announced, and each landed step's length as the feet were placed (the estimator's ankles);
+* the controller's telemetry frames: the step's index and commanded length, the step before it as
+  the controller saw it placed, the last step's cost, where step lengths come from, theta, and the
+  learner's update, roll-out and gait cycle with the costs of the last gait cycles;
 * once per tick (at the next SYNC, when the tick's frames are in) the controller's own
   :class:`~controller.estimator.StateEstimator` on the tick's sensor frames: CoM, ankles, stick
   tips, the support polygon and X_CoM/X_SP, as the controller computes them;
@@ -35,7 +38,7 @@ from protocol.busload import frame_bits
 from protocol.catalog import TICK_MS, Catalog
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver
-from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtState, NodeError
+from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtState, NodeError, PolicyMode
 
 #: the per-tick series, in the order of a sample (after its number and time)
 SERIES = (
@@ -44,6 +47,7 @@ SERIES = (
 )
 SWINGS = {GaitState.SWING_LEFT: 0, GaitState.SWING_RIGHT: 1}
 MAX_EMCY = 20  # EMCY records kept (newest last)
+MAX_COSTS = 60  # gait-cycle costs kept (six roll-outs of the paper's ten cycles)
 MAX_PATH = 400  # points of a swing's path kept (a swing is about 1-2 s: 50-100 ticks)
 SENSORS = ("STICK_LEFT", "STICK_RIGHT", "PLANTAR_LEFT", "PLANTAR_RIGHT", "TRUNK_IMU_ORIENTATION")
 
@@ -87,7 +91,8 @@ class ViewModel:
                              for i, n in enumerate(self.joint_nodes) for family in ("JOINT_STATUS", "JOINT_COMMAND")}
         self._heartbeat = {catalog.message("HEARTBEAT", n).frame_id: n for n in self.joint_nodes}
         self._emcy = {catalog.message("EMCY", n).frame_id: n for n in self.joint_nodes}
-        self._ids = {name: catalog.by_name(name).frame_id for name in (*SENSORS, "SYNC", "CONTROLLER_HEARTBEAT")}
+        self._ids = {name: catalog.by_name(name).frame_id
+                     for name in (*SENSORS, "SYNC", "CONTROLLER_HEARTBEAT", "CONTROLLER_STEP", "CONTROLLER_LEARNING")}
         self._sensor_of = {self._ids[name]: name for name in SENSORS}
         self.frames = 0
         self.first_tick: int | None = None
@@ -100,6 +105,9 @@ class ViewModel:
         self.landings = 0  # swings that ended in double support
         self.landed: deque[dict[str, Any]] = deque(maxlen=20)  # the newest: {"step", "leg", "length_m", "t"}
         self.emcy: deque[dict[str, Any]] = deque(maxlen=MAX_EMCY)
+        self.step: dict[str, Any] | None = None  # the newest CONTROLLER_STEP
+        self.learning: dict[str, Any] | None = None  # the newest CONTROLLER_LEARNING
+        self.costs: deque[dict[str, Any]] = deque(maxlen=MAX_COSTS)  # {"update", "rollout", "cycle", "cost_n"}
         self.sensors: dict[str, Any] = {}  # message name -> newest values
         self.q = [math.nan] * 4
         self.setpoints = [math.nan] * 4  # nan: not tracking (HOLD, QUICK_STOP, DISABLE)
@@ -147,6 +155,12 @@ class ViewModel:
         elif fid == self._ids["CONTROLLER_HEARTBEAT"]:
             self._gait(_name(GaitState, v.gait_state))
             self.controller_heartbeat_s = t
+        elif fid == self._ids["CONTROLLER_STEP"]:
+            self.step = {"index": v.step_index, "commanded_m": _num(v.step_length_m, 3) if v.step_index else None,
+                         "placed_m": _num(v.placed_step_m, 3) if v.placed_step_m else None,
+                         "cost_n": _num(v.step_cost_N, 1) if v.step_cost_N else None, "policy": _name(PolicyMode, v.policy)}
+        elif fid == self._ids["CONTROLLER_LEARNING"]:
+            self._learner(v)
         elif fid in self._heartbeat:
             node = self.nodes[self._heartbeat[fid]]
             node.nmt, node.supply_v, node.heartbeat_s = _name(NmtState, v.nmt_state), v.supply_voltage_V, t
@@ -170,6 +184,14 @@ class ViewModel:
                                 "length_m": None if a is None else _num(abs(a[0][0] - a[1][0])), "t": round(self.now_s, 3)})
         if swing is None:
             self.swing_leg = None
+
+    def _learner(self, v: Any) -> None:
+        self.learning = {"alpha": _num(v.alpha, 2), "xhat_com": _num(v.xhat_com, 3), "update": v.update_index,
+                         "rollout": v.rollout_index, "cycle": v.cycle_index}
+        if v.cycle_index:  # a gait cycle told to the learner: keep its cost once
+            key = {"update": v.update_index, "rollout": v.rollout_index, "cycle": v.cycle_index}
+            if not self.costs or any(self.costs[-1][k] != key[k] for k in key):
+                self.costs.append({**key, "cost_n": _num(v.cycle_cost_N, 1)})
 
     def _measurements(self) -> Measurements | None:
         s = self.sensors
@@ -227,7 +249,9 @@ class ViewModel:
                 "cycles": self.landings // 2,
                 "landed": list(self.landed)[-6:],
                 "heartbeat_age_s": None if self.controller_heartbeat_s is None else round(now - self.controller_heartbeat_s, 3),
+                "controller_step": self.step,
             },
+            "learning": None if self.learning is None else {**self.learning, "costs": list(self.costs)},
             "estimate": None if est is None else {
                 "com": [_num(x) for x in est.com],
                 "ankles": [[_num(x) for x in a] for a in est.ankles],

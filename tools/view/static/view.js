@@ -53,6 +53,12 @@ function update(s) {
   $("bus-load").textContent = `${fmt(100 * s.bus_load, 1)} %`;
   $("x-ratio").textContent = s.estimate ? fmt(s.estimate.x_ratio) : "–";
   $("landed").innerHTML = g.landed.map((st) => `<li value="${st.step}">${st.leg}: ${fmt(st.length_m, 3)} m at ${fmt(st.t, 1)} s</li>`).join("");
+  const st = g.controller_step;
+  $("commanded").textContent = st && st.commanded_m !== null ? `${fmt(st.commanded_m, 3)} m (step ${st.index})` : "–";
+  $("placed").textContent = st && st.placed_m !== null ? `${fmt(st.placed_m, 3)} m` : "–";
+  $("step-cost").textContent = st && st.cost_n !== null ? `${fmt(st.cost_n, 1)} N` : "–";
+  $("policy").textContent = st ? st.policy : "–";
+  drawLearning(s.learning);
   addSamples(s.kind === "full", s.series);
   drawSagittal(s.estimate);
   drawTop(s.estimate);
@@ -211,6 +217,26 @@ function drawPlots() {
     { title: "knees rad", lines: [
       { field: "q_lk", color: COLORS.l, label: "left measured" }, { field: "cmd_lk", color: COLORS.l, dash: [5, 3], label: "left commanded" },
       { field: "q_rk", color: COLORS.r, label: "right measured" }, { field: "cmd_rk", color: COLORS.r, dash: [5, 3], label: "right commanded" }] }]);
+}
+
+function drawLearning(l) {
+  $("theta").textContent = l ? `${fmt(l.alpha, 2)}, ${fmt(l.xhat_com, 3)}` : "–";
+  $("update").textContent = l ? l.update : "–";
+  $("rollout").textContent = l ? l.rollout : "–";
+  $("cycle").textContent = l ? l.cycle : "–";
+  const canvas = $("plot-costs"), ctx = canvas.getContext("2d");
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  const costs = l ? l.costs : [];
+  canvas.dataset.points = costs.length;
+  ctx.fillStyle = "#5a6375"; ctx.font = "11px system-ui";
+  if (!costs.length) { ctx.fillText("gait-cycle costs appear here while learning", 8, 16); return; }
+  const hi = Math.max(...costs.map((c) => c.cost_n)) || 1, w = canvas.width / 60;
+  costs.forEach((c, i) => {
+    const h = (c.cost_n / hi) * (canvas.height - 16);
+    ctx.fillStyle = c.rollout % 2 ? "#219ebc" : "#8ecae6";
+    ctx.fillRect(i * w, canvas.height - h, w - 1, h);
+  });
+  ctx.fillStyle = "#1d2330"; ctx.fillText(`gait-cycle cost, last ${costs.length} (max ${fmt(hi, 1)} N)`, 4, 12);
 }
 
 // -- health ------------------------------------------------------------------------------------
