@@ -1,13 +1,14 @@
 # Quick start: `make demo` (set up and run the main job) and `make test` (set up and run every test).
 # Both create .venv and install what they need; as root they also apt-get install
-# user-mode-linux, kmod and can-utils when missing (the vcan sandbox and the CAN peer tools).
+# user-mode-linux, kmod and can-utils when missing (the vcan sandbox and the CAN peer tools), and
+# chromium (the live view's browser tests drive it with playwright).
 
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 PY     := $(VENV)/bin/python
 AIDER  := $(VENV)/bin/aider-exo
 STAMP  := $(VENV)/.installed
-SYSTEM_TOOLS := linux insmod candump canplayer cangen
+SYSTEM_TOOLS := linux insmod candump canplayer cangen chromium
 
 .PHONY: demo test venv system-deps docs clean
 
@@ -20,15 +21,15 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[test]'
 	@touch $(STAMP)
 
-# The vcan sandbox (user-mode Linux + kmod) and can-utils (candump, canplayer, cangen).
+# The vcan sandbox (user-mode Linux + kmod), can-utils (candump, canplayer, cangen) and chromium.
 system-deps:
 	@missing=""; for t in $(SYSTEM_TOOLS); do command -v $$t >/dev/null 2>&1 || [ -x /usr/sbin/$$t ] || [ -x /sbin/$$t ] || missing="$$missing $$t"; done; \
 	if [ -z "$$missing" ]; then exit 0; fi; \
 	if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-		echo "installing user-mode-linux kmod can-utils (missing:$$missing)"; \
-		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq user-mode-linux kmod can-utils >/dev/null; \
+		echo "installing user-mode-linux kmod can-utils chromium (missing:$$missing)"; \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq user-mode-linux kmod can-utils chromium >/dev/null; \
 	else \
-		echo "warning: missing$$missing; install user-mode-linux kmod can-utils (as root) or the vcan tests will be skipped"; \
+		echo "warning: missing$$missing; install user-mode-linux kmod can-utils chromium (as root) or the vcan and browser tests will be skipped"; \
 	fi
 
 # The main job: the main controller walks the simulated HHEA through the four emulated node boards,

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import threading
 from typing import NamedTuple
 
 import numpy as np
@@ -13,7 +14,7 @@ import pytest
 from aiohttp import WSMsgType
 from aiohttp.test_utils import TestClient, TestServer
 
-from config import default_config_path, load_config
+from config import default_config_path, load_config, with_overrides
 from config.loader import AiderError
 from protocol.bus import virtual_bus
 from protocol.catalog import default_catalog
@@ -308,3 +309,62 @@ def test_the_view_plays_a_recorded_trace(tmp_path, capsys):
     recorded = len(list(read_frames([trace], ReadReport())))
     assert recorded > 5000 and out["frames"] == recorded and out["receiver"]["rejected_by_reason"] == {}
     assert out["gait"]["steps"] == 2 and out["sends_refused"] == 0 and out["reader_error"] is None
+
+
+# -- in a real browser -----------------------------------------------------------------------------
+
+
+@pytest.mark.realtime  # paced on the wall clock: with the realtime stage, not beside other workers
+def test_a_browser_follows_a_walk_and_shows_a_node_fault(tmp_path):
+    """Headless chromium (playwright) on the page of a lock-step walk paced at 4 times real time:
+    the gait state goes through DOUBLE_SUPPORT and both swings, the CoM marker moves, the stick-force
+    plot grows, and the right knee's drive fault (injected after the first gait cycle) appears in the
+    node table and the EMCY list; the page is saved as a screenshot."""
+    from tools.view import browser
+    from tools.view.live import LiveView, Pace
+    from tools.pipeline import walk_config
+
+    if (why := browser.missing()) is not None:
+        pytest.skip(why)
+    fault_tick = 600  # the first gait cycle lands at tick 568 (seed 0)
+    cfg = with_overrides(CFG, {"nodes.faults": {"f": {"kind": "drive_fault", "node": "RIGHT_KNEE", "start_tick": fault_tick}}})
+    channel = "view-browser"
+    view = LiveView(cfg, walk_config(cfg, "sagittal", channel).bus, port=0)
+    pace = Pace(4.0)
+    outcome: list = []
+    walker = threading.Thread(target=lambda: outcome.append(
+        walk(cfg, cycles=2, seed=0, channel=channel, compare_ratio=False, on_tick=lambda r, core, host: pace(r.tick))))
+    try:
+        url = view.start()
+        with browser.Browser(url) as page:
+            page.wait_for("document.getElementById('link').textContent === 'connected'", 20)
+            walker.start()
+            com_px, ratios, force_points = set(), set(), []
+            while walker.is_alive():
+                com_px.add(page.data("#topdown", "com-px"))
+                ratios.add(page.text("#x-ratio"))
+                force_points.append(int(page.data("#plot-forces", "points")))
+                walker.join(0.2)
+            page.wait_for("document.querySelector('#nodes tr.fault') !== null", 10)
+            fault_row = page.text("#nodes tr.fault")
+            emcy = page.text("#emcy")
+            stats = page.stats()
+            shot = page.screenshot(tmp_path / "view.png")
+    finally:
+        walker.join()
+        report = view.close()
+    assert outcome and outcome[0].fault is not None and outcome[0].cycles_completed == 1, outcome and outcome[0].summary()
+    states = stats["states"]
+    assert states[0] in ("UNKNOWN", "INIT", "STANDING"), states
+    first_ds = states.index("DOUBLE_SUPPORT")
+    assert {"SWING_LEFT", "SWING_RIGHT"} <= set(states[first_ds:]) and states[-1] == "FAULT", states
+    assert stats["updates"] >= 20 * 2  # 25 a second for the walk's few seconds
+    px = sorted(int(x) for x in com_px if x is not None)
+    assert px and px[-1] - px[0] > 20, px  # the CoM marker moved over the feet and sticks ...
+    shown = sorted(float(r) for r in ratios if r != "–")
+    assert shown and shown[-1] - shown[0] > 0.3, shown  # ... and through the support polygon
+    assert force_points[-1] > force_points[0] + 200 and force_points == sorted(force_points)
+    assert "RIGHT_KNEE" in fault_row and "FAULT" in fault_row and "OVER_CURRENT" in fault_row, fault_row
+    assert "RIGHT_KNEE" in emcy and "OVER_CURRENT" in emcy, emcy
+    assert report["sends_refused"] == 0 and report["reader_error"] is None
+    assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and shot.stat().st_size > 20_000

@@ -55,57 +55,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-class LiveView:
-    """``--view``: the passive listener on the walk's bus and its web server in background threads,
-    and the pace that lets a person watch a lock-step walk (which otherwise runs as fast as it computes)."""
-
-    def __init__(self, cfg: Any, bus_cfg: Any, *, port: int, pace: float) -> None:
-        from protocol.bus import open_bus
-        from tools.view import make_feed
-        from tools.view.server import ServerThread, ViewServer
-        from tools.view.source import BusReader, ListenOnly
-
-        self.feed = make_feed(cfg)
-        self.bus = ListenOnly(open_bus(bus_cfg))  # opened before the walk: it sees the boot-ups
-        self.reader = BusReader(self.bus, self.feed, poll_s=0.05)
-        self.server = ServerThread(ViewServer(self.feed, port=port, title=f"walk on {bus_cfg.interface}:{bus_cfg.channel}"))
-        from protocol.clock import MonotonicClock
-
-        self.pace = pace
-        self.clock = MonotonicClock()
-        self._t0_ns: int | None = None
-
-    def start(self) -> str:
-        self.reader.start()
-        try:
-            return self.server.start_serving()
-        except BaseException:
-            self.reader.stop()
-            self.bus.shutdown()
-            raise
-
-    def tick(self, tick: int) -> None:
-        """Hold the walk to ``pace`` times real time (tick ``tick`` at 20 ms per tick)."""
-        if self.pace <= 0:
-            return
-        from protocol.catalog import TICK_MS
-
-        tick_ns = int(TICK_MS * 1_000_000 / self.pace)
-        if self._t0_ns is None:
-            self._t0_ns = self.clock.now_ns() - tick * tick_ns
-        self.clock.sleep_until(self._t0_ns + (tick + 1) * tick_ns)
-
-    def close(self, linger_s: float = 0.0) -> dict[str, Any]:
-        if linger_s > 0:
-            self.clock.sleep_until(self.clock.now_ns() + int(linger_s * 1e9))
-        self.reader.stop()
-        self.reader.join(timeout=2.0)
-        self.server.close()
-        self.bus.shutdown()
-        return {"url": self.server.server.url, "frames": self.feed.model.frames, "server": self.server.server.stats.as_dict(),
-                "sends_refused": self.bus.sends_refused}
-
-
 class StatusLine:
     """The walk's live one-line status on stderr: rewritten in place on a terminal, otherwise a
     line every simulated second and at every step."""
@@ -172,8 +121,10 @@ def run(args: argparse.Namespace) -> int:
     if args.view:
         from tools.pipeline import walk_config
 
-        view = LiveView(cfg, cfg.bus if two_processes else walk_config(cfg, args.mode, channel).bus,
-                        port=args.view_port, pace=args.pace)
+        from tools.view.live import LiveView, Pace
+
+        view = LiveView(cfg, cfg.bus if two_processes else walk_config(cfg, args.mode, channel).bus, port=args.view_port)
+        pace = Pace(args.pace)
         print(f"aider-exo walk: live view at {view.start()}", file=sys.stderr, flush=True)
     recorder = camera = None
     if args.render:
@@ -187,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
     def watched(result: Any, core: Any) -> None:
         status(result, core)
         if view is not None:
-            view.tick(result.tick)
+            pace(result.tick)
 
     try:
         telemetry = TelemetryLog(args.log) if args.log else None  # in the try: the saver is closed if it fails

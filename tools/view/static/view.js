@@ -164,6 +164,7 @@ function drawTop(e) {
   dot(ctx, X(e.com[0]), Y(e.com[1]), 7, COLORS.com, true);
   canvas.dataset.comX = e.com[0];
   canvas.dataset.comY = e.com[1];
+  canvas.dataset.comPx = Math.round(X(e.com[0]));  // where the marker is drawn, across the canvas
 }
 
 // -- rolling plots -----------------------------------------------------------------------------

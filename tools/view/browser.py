@@ -1,0 +1,88 @@
+"""The live view's page in a real headless browser: Debian's chromium driven by playwright (no
+browser download), for the tests, ``aider-exo bench view`` and the README's screenshot.
+
+The page keeps what it measured in ``window.viewStats`` (static/view.js): the updates it drew,
+each update's latency from the newest frame's bus timestamp to its arrival in the page, and the
+gait states it showed in order."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+from config.loader import AiderError
+
+#: chromium's flags for a headless page in a container: no sandbox (root), no GPU, and none of
+#: the background traffic that would try to reach the network
+CHROMIUM_ARGS = ("--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run", "--disable-dev-shm-usage")
+VIEWPORT = {"width": 1200, "height": 1000}
+
+
+def chromium_path() -> str | None:
+    """Debian's chromium (``apt-get install chromium``, as ``make test`` does), if installed."""
+    return shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists() else None)
+
+
+def missing() -> str | None:
+    """Why a browser cannot be driven here (None: it can)."""
+    if chromium_path() is None:
+        return "chromium is not installed (apt-get install chromium; make test installs it as root)"
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "the playwright package is not installed (pip install -e '.[test]')"
+    return None
+
+
+class Browser:
+    """One headless chromium with one page on ``url``; a context manager."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self._pw: Any = None
+        self._browser: Any = None
+        self.page: Any = None
+
+    def __enter__(self) -> Browser:
+        why = missing()
+        if why:
+            raise AiderError(f"cannot drive a browser: {why}")
+        from playwright.sync_api import sync_playwright
+
+        self._pw = sync_playwright().start()
+        try:
+            self._browser = self._pw.chromium.launch(executable_path=chromium_path(), headless=True, args=list(CHROMIUM_ARGS))
+            self.page = self._browser.new_page(viewport=VIEWPORT)
+            self.page.goto(self.url)
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._browser is not None:
+            self._browser.close()
+        if self._pw is not None:
+            self._pw.stop()
+
+    def stats(self) -> dict[str, Any]:
+        """The page's ``window.viewStats``: updates, latencies (s), the gait states it showed."""
+        return self.page.evaluate("() => window.viewStats")
+
+    def text(self, selector: str) -> str:
+        return self.page.inner_text(selector)
+
+    def data(self, selector: str, name: str) -> str | None:
+        """A ``data-*`` attribute of an element (the canvases say what they drew)."""
+        return self.page.get_attribute(selector, f"data-{name}")
+
+    def wait_for(self, js: str, timeout_s: float) -> None:
+        """Until the page's JavaScript expression ``js`` is true (a playwright timeout error after ``timeout_s``)."""
+        self.page.wait_for_function(js, timeout=timeout_s * 1000)
+
+    def screenshot(self, path: Path) -> Path:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.page.screenshot(path=str(path), full_page=True)
+        return path

@@ -1,0 +1,67 @@
+"""The live view beside a walk in this process (``aider-exo walk --view``, ``aider-exo bench view``):
+a passive listener on the walk's bus and the web server, each in a background thread, and the pace
+that lets a person watch a lock-step walk, which otherwise runs as fast as it computes."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from protocol.catalog import TICK_MS
+from protocol.clock import MonotonicClock
+
+
+class Pace:
+    """Holds a lock-step walk to ``factor`` times real time: tick ``k`` ends no earlier than
+    ``k + 1`` ticks of 20 ms (divided by ``factor``) after the first (0: no pacing)."""
+
+    def __init__(self, factor: float, clock: MonotonicClock | None = None) -> None:
+        self.factor = factor
+        self.clock = clock or MonotonicClock()
+        self._t0_ns: int | None = None
+
+    def __call__(self, tick: int) -> None:
+        if self.factor <= 0:
+            return
+        tick_ns = int(TICK_MS * 1_000_000 / self.factor)
+        if self._t0_ns is None:
+            self._t0_ns = self.clock.now_ns() - tick * tick_ns
+        self.clock.sleep_until(self._t0_ns + (tick + 1) * tick_ns)
+
+
+class LiveView:
+    """The view of ``cfg``'s walk on the bus ``bus_cfg``: opened before the walk (it sees the
+    boot-ups), its reader and server threads started by :meth:`start`, both stopped by :meth:`close`."""
+
+    def __init__(self, cfg: Any, bus_cfg: Any, *, port: int = 8050, rate_hz: float = 25.0) -> None:
+        from protocol.bus import open_bus
+        from tools.view import make_feed
+        from tools.view.server import ServerThread, ViewServer
+        from tools.view.source import BusReader, ListenOnly
+
+        self.feed = make_feed(cfg)
+        self.bus = ListenOnly(open_bus(bus_cfg))
+        self.reader = BusReader(self.bus, self.feed, poll_s=0.05)
+        self.server = ServerThread(ViewServer(self.feed, port=port, rate_hz=rate_hz,
+                                              title=f"walk on {bus_cfg.interface}:{bus_cfg.channel}"))
+        self.clock = MonotonicClock()
+
+    def start(self) -> str:
+        """Start listening and serving; the page's address."""
+        self.reader.start()
+        try:
+            return self.server.start_serving()
+        except BaseException:
+            self.reader.stop()
+            self.bus.shutdown()
+            raise
+
+    def close(self, linger_s: float = 0.0) -> dict[str, Any]:
+        """Stop (after serving ``linger_s`` more seconds); what the view saw and served."""
+        if linger_s > 0:
+            self.clock.sleep_until(self.clock.now_ns() + int(linger_s * 1e9))
+        self.reader.stop()
+        self.reader.join(timeout=2.0)
+        self.server.close()
+        self.bus.shutdown()
+        return {"url": self.server.server.url, "frames": self.feed.model.frames, "server": self.server.server.stats.as_dict(),
+                "sends_refused": self.bus.sends_refused, "reader_error": self.reader.error}
