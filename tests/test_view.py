@@ -311,6 +311,16 @@ def test_the_view_plays_a_recorded_trace(tmp_path, capsys):
     assert out["gait"]["steps"] == 2 and out["sends_refused"] == 0 and out["reader_error"] is None
 
 
+
+def test_walk_view_serves_the_walks_page_and_prints_its_address(capsys):
+    assert main(["walk", "--steps", "1", "--view", "--view-port", "0", "--pace", "0", "--json", "--quiet"]) == 0
+    out = capsys.readouterr()
+    summary, view = json.loads(out.out), json.loads(out.out)["view"]
+    assert f"aider-exo walk: live view at {view['url']}" in out.err and view["url"].startswith("http://127.0.0.1:")
+    # the nodes' frames the controller accepted, and the controller's own (a SYNC a tick at least)
+    assert summary["cycles_completed"] == 1 and view["frames"] >= summary["receiver"]["accepted"] + summary["ticks"]
+    assert view["sends_refused"] == 0 and view["reader_error"] is None
+
 # -- in a real browser -----------------------------------------------------------------------------
 
 
@@ -368,3 +378,39 @@ def test_a_browser_follows_a_walk_and_shows_a_node_fault(tmp_path):
     assert "RIGHT_KNEE" in emcy and "OVER_CURRENT" in emcy, emcy
     assert report["sends_refused"] == 0 and report["reader_error"] is None
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and shot.stat().st_size > 20_000
+
+
+@pytest.mark.vcan
+def test_the_view_watches_a_walk_over_vcan0_and_sends_nothing(vcan0, tmp_path):
+    """``aider-exo view`` on vcan0 while the controller and the nodes walk a gait cycle there as two
+    processes, candump recording: every frame candump saw is one the controller or the nodes sent
+    (the view sent none) and the view saw them all, with the walk's steps."""
+    import signal
+    import subprocess
+
+    from tests.conftest import ROOT
+    from tests.test_vcan_controller import AIDER, _recorded, _walk_two_processes
+
+    view = subprocess.Popen([AIDER, "view", "--bus", "socketcan", "--channel", vcan0, "--port", "0", "--json"],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        started = view.stderr.readline()  # "aider-exo view: socketcan:vcan0 at http://127.0.0.1:PORT/ (Ctrl-C stops)"
+        assert " at http://127.0.0.1:" in started, started + view.stderr.read()
+        log = tmp_path / "candump.log"
+        summary, nodes = _walk_two_processes("socketcan", vcan0, log, 1, lockstep=True)
+    finally:
+        view.send_signal(signal.SIGINT)
+        out, err = view.communicate(timeout=60)
+    assert view.returncode == 0, err
+    seen = json.loads(out)
+    recorded = _recorded(log)
+    assert summary["steps_completed"] == 2
+    assert recorded == summary["frames_sent"] + nodes["frames_sent"]  # nothing on the bus but the walk's frames
+    assert seen["sends_refused"] == 0 and seen["reader_error"] is None
+    # The view saw every frame of the walk, and the probes of the recording, not in the DBC (some
+    # sent before candump listened, repeated until it did, and the last one).
+    probes = seen["receiver"]["rejected_by_reason"].pop("unknown_id", 0)
+    assert seen["frames"] == recorded + probes and probes >= 2 and seen["receiver"]["rejected_by_reason"] == {}
+    # Both swings seen in the controller's heartbeats (the last landing is not: the controller
+    # stops at the tick it lands, before its next heartbeat).
+    assert seen["gait"]["steps"] == 2
