@@ -33,9 +33,10 @@ system-deps:
 	fi
 
 # The main job: the main controller walks the simulated HHEA through the four emulated node boards,
-# every value a CAN frame, in lock-step; the walk is rendered to build/walk (PNG strip and GIF).
+# every value a CAN frame, in lock-step at real time, with the live view of the walk served on
+# http://127.0.0.1:8050/ (docs/VIEW.md); the walk is rendered to build/walk (PNG strip and GIF).
 demo: venv system-deps
-	$(AIDER) walk --steps 10 --render build/walk
+	$(AIDER) walk --steps 10 --render build/walk --view
 
 # Three stages: the host tests on every core; the real-time walks alone (beside another worker
 # they overrun on a 2-core machine); the vcan tests in the sandbox. Each lists its slowest tests,
@@ -45,9 +46,13 @@ test: venv system-deps
 	$(PY) -m pytest -m realtime -p no:cacheprovider --durations=8
 	tools/vcan-run -- $(PY) -m pytest -m vcan -p no:cacheprovider --durations=8
 
-# Regenerate the protocol documentation from the DBC (a test fails when it is stale).
-docs: venv
+# Regenerate the protocol documentation from the DBC (a test fails when it is stale), and the live
+# view's picture in the README: a recorded two-cycle walk played to the page in a headless chromium.
+docs: venv system-deps
 	$(AIDER) protocol --markdown > docs/PROTOCOL.md
+	mkdir -p build
+	$(AIDER) trace record build/view-walk.log --walk 2 --seed 0 --overwrite
+	$(AIDER) view --trace build/view-walk.log --speed 4 --port 0 --screenshot docs/view.png
 
 clean:
 	rm -rf $(VENV) build .pytest_cache .hypothesis

@@ -7,9 +7,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from controller.timing import TickStats
+from controller.timing import TickStats, quantile_interval
 from protocol import realtime as timing
 from protocol.realtime import realtime_setup
 
@@ -94,3 +95,13 @@ print(vm_kib() - before)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=Path(__file__).resolve().parents[1])
     assert int(out.stdout) < 1024, f"the first solve after the warm-up mapped {out.stdout.strip()} KiB"
+
+
+def test_the_p99s_interval_covers_the_true_p99_about_95_times_in_100():
+
+    rng = np.random.default_rng(7)
+    true_p99 = -np.log(0.01)  # of the exponential distribution of mean 1
+    covered = [lo <= true_p99 <= hi for lo, hi in (quantile_interval(rng.exponential(size=600), 0.99) for _ in range(400))]
+    assert 0.92 <= np.mean(covered) <= 0.99
+    lo, hi = quantile_interval(np.arange(1000.0), 0.99)
+    assert lo < 989.5 < hi and hi - lo < 15  # about the 990th value, a few ranks either side

@@ -331,8 +331,8 @@ def test_a_browser_follows_a_walk_and_shows_a_node_fault(tmp_path):
     plot grows, and the right knee's drive fault (injected after the first gait cycle) appears in the
     node table and the EMCY list; the page is saved as a screenshot."""
     from tools.view import browser
-    from tools.view.live import LiveView, Pace
-    from tools.pipeline import walk_config
+    from tools.pipeline import Pace, walk_config
+    from tools.view.live import LiveView
 
     if (why := browser.missing()) is not None:
         pytest.skip(why)
@@ -414,3 +414,38 @@ def test_the_view_watches_a_walk_over_vcan0_and_sends_nothing(vcan0, tmp_path):
     # Both swings seen in the controller's heartbeats (the last landing is not: the controller
     # stops at the tick it lands, before its next heartbeat).
     assert seen["gait"]["steps"] == 2
+
+
+def test_view_screenshot_needs_a_trace_or_a_duration(capsys):
+    assert main(["view", "--port", "0", "--screenshot", "x.png", "--bus", "udp_multicast"]) == 1
+    assert "give --trace or --duration" in capsys.readouterr().err
+
+
+@pytest.mark.realtime  # its walks are in real time
+def test_the_view_benchmark_measures_both_settings_in_the_browser(tmp_path, capsys):
+    """``aider-exo bench view`` on short walks: every figure is measured (its values are printed,
+    never asserted here), the view sent nothing and the page was saved. Also ``view --screenshot``
+    on a recorded trace."""
+    from tools.view import browser
+
+    if (why := browser.missing()) is not None:
+        pytest.skip(why)
+    shot = tmp_path / "bench.png"
+    assert main(["bench", "view", "--max-ticks", "100", "--repeats", "1", "--json", "--screenshot", str(shot)]) == 0
+    r = json.loads(capsys.readouterr().out)
+    for key in ("beside_the_walk", "in_the_walks_process"):
+        s = r[key]
+        assert s["latency_ms"]["samples"] > 10 and s["updates_per_s"] > 0 and s["listener_cpu_percent"] >= 0
+        work = s["controller_work_us"]
+        assert len(work["without_view"]) == 2 and len(work["with_view"]) == 1
+        assert all(w["ticks"] >= 100 and w["p99_ci_us"][0] <= w["p99_us"] <= w["p99_ci_us"][1] for w in work["without_view"] + work["with_view"])
+        assert all(w["fall"] is None and w["fault"] is None for w in s["walks"]["without_view"] + s["walks"]["with_view"])
+    assert r["beside_the_walk"]["screenshot"] == str(shot) and shot.read_bytes()[:4] == b"\x89PNG"
+
+    trace = tmp_path / "walk.log"
+    assert main(["trace", "record", str(trace), "--walk", "1", "--seed", "1"]) == 0
+    capsys.readouterr()
+    page = tmp_path / "trace.png"
+    assert main(["view", "--trace", str(trace), "--speed", "0", "--port", "0", "--screenshot", str(page), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["screenshot"] == str(page) and page.read_bytes()[:4] == b"\x89PNG" and out["server"]["connects"] == 1

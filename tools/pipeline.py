@@ -14,6 +14,7 @@ is read beside the pipeline, never fed into it.
 from __future__ import annotations
 
 import math
+import subprocess
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -125,6 +126,24 @@ def _spread(values: list[float]) -> dict[str, float | None]:
     """Mean, min and max of ``values`` (None for none)."""
     return {"mean": _round(float(np.mean(values)) if values else math.nan),
             "min": _round(min(values, default=math.nan)), "max": _round(max(values, default=math.nan))}
+
+
+class Pace:
+    """Holds a lock-step walk to ``factor`` times real time: tick ``k`` ends no earlier than
+    ``k + 1`` ticks of 20 ms (divided by ``factor``) after the first (0: no pacing)."""
+
+    def __init__(self, factor: float, clock: MonotonicClock | None = None) -> None:
+        self.factor = factor
+        self.clock = clock or MonotonicClock()
+        self._t0_ns: int | None = None
+
+    def __call__(self, tick: int) -> None:
+        if self.factor <= 0:
+            return
+        tick_ns = int(TICK_MS * 1_000_000 / self.factor)
+        if self._t0_ns is None:
+            self._t0_ns = self.clock.now_ns() - tick * tick_ns
+        self.clock.sleep_until(self._t0_ns + (tick + 1) * tick_ns)
 
 
 def walk_config(cfg: Config, mode: str, channel: str) -> Config:
@@ -257,3 +276,31 @@ def walk_controller(
     outcome.sim_time_s = outcome.ticks * TICK_MS / 1000.0
     outcome.wall_time_s = (clock.now_ns() - t0) / 1e9
     return outcome
+
+
+def wait_for_boot_ups(bus_cfg: Any, nodes: subprocess.Popen, timeout_s: float = 120.0) -> None:
+    """Until the four node boards' boot-up heartbeats are on the bus ``bus_cfg`` (seen on a socket of
+    our own), from the nodes process ``nodes`` (an error when it exits first or after ``timeout_s``)."""
+    from config.loader import AiderError
+    from protocol.bus import open_bus
+    from protocol.codec import Codec, Decoded
+    from protocol.enums import NmtState
+
+    codec, clock = Codec(), MonotonicClock()
+    booted: set[str] = set()
+    deadline = clock.now_ns() + int(timeout_s * 1e9)
+    probe = open_bus(bus_cfg)
+    try:
+        while len(booted) < len(codec.catalog.joint_nodes):
+            if nodes.poll() is not None:
+                raise AiderError(f"the nodes process exited with {nodes.returncode} before booting")
+            if clock.now_ns() > deadline:
+                raise AiderError(f"the nodes did not boot within {timeout_s:.0f} s (seen: {sorted(booted) or 'none'})")
+            msg = probe.recv(timeout=0.1)
+            if msg is None:
+                continue
+            result = codec.decode(msg.arbitration_id, bytes(msg.data))  # total: foreign frames are rejections
+            if type(result) is Decoded and result.message.family == "HEARTBEAT" and result.values.nmt_state == NmtState.BOOT_UP:
+                booted.add(result.message.sender)
+    finally:
+        probe.shutdown()

@@ -16,6 +16,7 @@ BENCHMARKS = {
     "controller": "tools.bench.controller",
     "trace": "tools.bench.trace",
     "profile": "tools.bench.profile",
+    "view": "tools.bench.view",
 }
 
 

@@ -31,6 +31,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--token", help="secret the page must present (/?token=SECRET); required off loopback")
     p.add_argument("--rate", type=positive_float, default=25.0, metavar="HZ", help="page updates per second (default 25)")
     p.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
+    p.add_argument("--screenshot", metavar="PNG", type=Path,
+                   help="open the page in a headless chromium and save it when the trace ends (or after --duration), then stop")
     p.add_argument("--json", action="store_true", help="at the end, print what the view saw and served as JSON")
     p.set_defaults(func=run)
 
@@ -43,6 +45,13 @@ def run(args: argparse.Namespace) -> int:
     if args.speed < 0:
         raise AiderError(f"--speed {args.speed}: give 0 (as fast as it reads) or a positive factor")
     check_bind(args.host, args.token)  # before anything is opened
+    if args.screenshot and not (args.trace or args.duration):
+        raise AiderError("--screenshot is taken when the trace ends or after --duration: give --trace or --duration")
+    if args.screenshot:
+        from tools.view.browser import missing
+
+        if (why := missing()) is not None:
+            raise AiderError(f"--screenshot drives a browser: {why}")
     cfg = load_cli_config(args)
     feed = make_feed(cfg)
     bus = None
@@ -65,8 +74,12 @@ def run(args: argparse.Namespace) -> int:
         reader = BusReader(bus, feed)
         source = f"{cfg.bus.interface}:{cfg.bus.channel}"
     server = ViewServer(feed, host=args.host, port=args.port, token=args.token, rate_hz=args.rate, title=source)
+    shot = None
     try:
-        asyncio.run(_serve(server, reader, args.duration, source))
+        if args.screenshot:
+            shot = _screenshot(server, reader, args.duration, args.screenshot)
+        else:
+            asyncio.run(_serve(server, reader, args.duration, source))
     finally:
         reader.stop()
         if bus is not None:
@@ -77,12 +90,14 @@ def run(args: argparse.Namespace) -> int:
         "source": source, "url": server.url, "frames": snap["frames"], "receiver": snap["receiver"],
         "gait": {k: snap["gait"][k] for k in ("state", "steps", "cycles")}, "server": server.stats.as_dict(),
         "sends_refused": getattr(bus, "sends_refused", 0), "reader_error": reader.error,
+        "screenshot": str(shot) if shot else None,
     }
     if args.json:
         print_json(summary)
     else:
         print(f"view of {source}: {summary['frames']} frames, {snap['gait']['steps']} steps seen; "
-              f"served {server.stats.connects} browser connections, {server.stats.snapshots} updates")
+              f"served {server.stats.connects} browser connections, {server.stats.snapshots} updates"
+              + (f"; the page saved as {shot}" if shot else ""))
     if reader.error:
         print(f"aider-exo view: warning: {reader.error}", file=sys.stderr)
     return 0
@@ -102,3 +117,27 @@ async def _serve(server: Any, reader: Any, duration_s: float | None, source: str
                 await asyncio.sleep(0.1)
     finally:
         await server.stop()
+
+
+def _screenshot(server: Any, reader: Any, duration_s: float | None, path: Path) -> Path:
+    """Serve in a thread, open the page in a headless chromium, and save it when the trace has
+    been played (the page has drawn its last frame) or after ``duration_s``; the file written."""
+    from protocol.clock import MonotonicClock
+    from tools.view.browser import Browser
+    from tools.view.server import ServerThread
+
+    thread = ServerThread(server)
+    url = thread.start_serving()
+    try:
+        with Browser(url) as page:
+            page.wait_for("document.getElementById('link').textContent === 'connected'", 30)
+            clock = MonotonicClock()
+            end_ns = None if duration_s is None else clock.now_ns() + int(duration_s * 1e9)
+            reader.start()
+            while reader.is_alive() and (end_ns is None or clock.now_ns() < end_ns):
+                reader.join(0.1)
+            frames = server.feed.snapshot()["frames"]
+            page.wait_for(f"window.viewStats.frames >= {frames}", 10)  # its last update drawn
+            return page.screenshot(path)
+    finally:
+        thread.close()

@@ -44,12 +44,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--log", metavar="FILE", help="the controller's per-tick telemetry as JSON lines")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--quiet", action="store_true", help="no status line")
+    p.add_argument("--pace", type=float, metavar="X",
+                   help="walk at X times real time, so it can be watched (default: 1 with --view, otherwise 0: as fast as it computes)")
     v = p.add_argument_group("live view (docs/VIEW.md)")
     v.add_argument("--view", action="store_true",
                    help="serve the live view of this walk (aider-exo view, listening to the walk's bus) and print its address")
     v.add_argument("--view-port", type=int, default=8050, metavar="PORT", help="--view: port on 127.0.0.1 (default 8050; 0: any free one)")
-    v.add_argument("--pace", type=float, default=1.0, metavar="X",
-                   help="--view: walk at X times real time, so it can be watched (default 1; 0: as fast as it computes)")
     v.add_argument("--linger", type=positive_float, default=0.0, metavar="S",
                    help="--view: keep serving the page S seconds after the walk ends (default 0)")
     p.set_defaults(func=run)
@@ -98,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
     from config import ConfigError
     from controller.factory import step_policy
     from controller.telemetry import TelemetryLog
-    from tools.pipeline import walk
+    from tools.pipeline import Pace, walk
 
     cfg = load_cli_config(args)
     if cfg.controller is None or cfg.sim is None or cfg.nodes is None:
@@ -112,19 +112,18 @@ def run(args: argparse.Namespace) -> int:
                                 patients_dir=args.patients_dir, rng=rng)
     if args.learn and not args.patient:
         print("aider-exo walk: warning: learning without --patient: what is learnt is not kept", file=sys.stderr)
-    if args.pace < 0:
+    if args.pace is not None and args.pace < 0:
         raise ConfigError(f"--pace {args.pace}: give 0 (as fast as it computes) or a positive factor", key="pace")
+    pace = Pace(args.pace if args.pace is not None else 1.0 if args.view else 0.0)
     status = StatusLine(not args.quiet)
     telemetry = None
     channel = f"aider-walk-{args.seed}-{id(args)}"
     view = None
     if args.view:
         from tools.pipeline import walk_config
-
-        from tools.view.live import LiveView, Pace
+        from tools.view.live import LiveView
 
         view = LiveView(cfg, cfg.bus if two_processes else walk_config(cfg, args.mode, channel).bus, port=args.view_port)
-        pace = Pace(args.pace)
         print(f"aider-exo walk: live view at {view.start()}", file=sys.stderr, flush=True)
     recorder = camera = None
     if args.render:
@@ -137,8 +136,7 @@ def run(args: argparse.Namespace) -> int:
 
     def watched(result: Any, core: Any) -> None:
         status(result, core)
-        if view is not None:
-            pace(result.tick)
+        pace(result.tick)
 
     try:
         telemetry = TelemetryLog(args.log) if args.log else None  # in the try: the saver is closed if it fails
@@ -219,7 +217,7 @@ def _walk_two_processes(args: argparse.Namespace, cfg: Any, policy: Any, status:
     """The node boards as ``aider-exo nodes`` in a second process on the same bus (SocketCAN or UDP multicast)."""
     from config.loader import AiderError
     from protocol.bus import open_bus
-    from tools.pipeline import walk_controller
+    from tools.pipeline import wait_for_boot_ups, walk_controller
 
     exe = str(Path(sys.executable).with_name("aider-exo"))
     with tempfile.TemporaryDirectory(prefix="aider-walk-") as tmp:
@@ -241,7 +239,7 @@ def _walk_two_processes(args: argparse.Namespace, cfg: Any, policy: Any, status:
         bus = open_bus(cfg.bus)
         nodes = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
-            _wait_for_boot_ups(cfg, nodes)
+            wait_for_boot_ups(cfg.bus, nodes)
             with StopSignals():
                 outcome = walk_controller(cfg, bus, cycles=args.steps, seed=args.seed, mode=args.mode, policy=policy,
                                           max_time_s=args.max_time, on_tick=on_tick, telemetry=telemetry)
@@ -271,31 +269,3 @@ def _walk_two_processes(args: argparse.Namespace, cfg: Any, policy: Any, status:
     outcome.patient = report.get("patient")
     return outcome, {"pid": nodes.pid, "syncs": report.get("syncs"), "receiver": report.get("receiver"), "fall": report.get("fall"),
                      "fall_at": report.get("fall_at")}
-
-
-def _wait_for_boot_ups(cfg: Any, nodes: subprocess.Popen, timeout_s: float = 120.0) -> None:
-    """Until the four node boards' boot-up heartbeats are on the bus (seen on a socket of our own)."""
-    from config.loader import AiderError
-    from protocol.bus import open_bus
-    from protocol.clock import MonotonicClock
-    from protocol.codec import Codec, Decoded
-    from protocol.enums import NmtState
-
-    codec, clock = Codec(), MonotonicClock()
-    booted: set[str] = set()
-    deadline = clock.now_ns() + int(timeout_s * 1e9)
-    probe = open_bus(cfg.bus)
-    try:
-        while len(booted) < len(codec.catalog.joint_nodes):
-            if nodes.poll() is not None:
-                raise AiderError(f"the nodes process exited with {nodes.returncode} before booting")
-            if clock.now_ns() > deadline:
-                raise AiderError(f"the nodes did not boot within {timeout_s:.0f} s (seen: {sorted(booted) or 'none'})")
-            msg = probe.recv(timeout=0.1)
-            if msg is None:
-                continue
-            result = codec.decode(msg.arbitration_id, bytes(msg.data))  # total: foreign frames are rejections
-            if type(result) is Decoded and result.message.family == "HEARTBEAT" and result.values.nmt_state == NmtState.BOOT_UP:
-                booted.add(result.message.sender)
-    finally:
-        probe.shutdown()

@@ -1,31 +1,11 @@
 """The live view beside a walk in this process (``aider-exo walk --view``, ``aider-exo bench view``):
-a passive listener on the walk's bus and the web server, each in a background thread, and the pace
-that lets a person watch a lock-step walk, which otherwise runs as fast as it computes."""
+a passive listener on the walk's bus and the web server, each in a background thread."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from protocol.catalog import TICK_MS
 from protocol.clock import MonotonicClock
-
-
-class Pace:
-    """Holds a lock-step walk to ``factor`` times real time: tick ``k`` ends no earlier than
-    ``k + 1`` ticks of 20 ms (divided by ``factor``) after the first (0: no pacing)."""
-
-    def __init__(self, factor: float, clock: MonotonicClock | None = None) -> None:
-        self.factor = factor
-        self.clock = clock or MonotonicClock()
-        self._t0_ns: int | None = None
-
-    def __call__(self, tick: int) -> None:
-        if self.factor <= 0:
-            return
-        tick_ns = int(TICK_MS * 1_000_000 / self.factor)
-        if self._t0_ns is None:
-            self._t0_ns = self.clock.now_ns() - tick * tick_ns
-        self.clock.sleep_until(self._t0_ns + (tick + 1) * tick_ns)
 
 
 class LiveView:

@@ -5,18 +5,26 @@ const HISTORY_S = 10;
 const COLORS = { l: "#1f77b4", r: "#ff7f0e", com: "#d62828", poly: "#219ebc", cmd: "#6a4c93" };
 const series = { fields: [], columns: {} };  // field -> array of values, in time order
 // What the page measured, for tests and `aider-exo bench view`: frame-to-page latency (s) and updates.
-window.viewStats = { updates: 0, latencies: [], lastState: null, states: [] };
+window.viewStats = { updates: 0, frames: 0, latencies: [], lastNewest: null, lastState: null, states: [] };
 
 const $ = (id) => document.getElementById(id);
+// Set an element's text or markup only when it changes: the browser then lays out and paints
+// only what changed (the page's CPU at 25 updates a second).
+const shown = new Map();
+function put(el, value, html = false) {
+  if (shown.get(el) === value) return;
+  shown.set(el, value);
+  if (html) el.innerHTML = value; else el.textContent = value;
+}
 const fmt = (x, d = 2) => (x === null || x === undefined ? "–" : Number(x).toFixed(d));
 
 function connect() {
   const token = new URLSearchParams(location.search).get("token");
   const url = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws${token ? "?token=" + encodeURIComponent(token) : ""}`;
   const ws = new WebSocket(url);
-  ws.onopen = () => { $("link").textContent = "connected"; $("link").className = "ok"; };
+  ws.onopen = () => { put($("link"), "connected"); $("link").className = "ok"; };
   ws.onclose = () => {
-    $("link").textContent = "disconnected: reconnecting…"; $("link").className = "bad";
+    put($("link"), "disconnected: reconnecting…"); $("link").className = "bad";
     setTimeout(connect, 1000);
   };
   ws.onmessage = (ev) => {
@@ -25,39 +33,42 @@ function connect() {
     update(snap);
     const stats = window.viewStats;
     stats.updates += 1;
-    if (snap.newest_ts !== null && snap.stale_s !== null && snap.stale_s < 1) {
-      stats.latencies.push(received - snap.newest_ts);
+    stats.frames = snap.frames;
+    // the newest frame's latency, once per frame (an update without a newer frame measures nothing)
+    if (snap.newest_ts !== null && snap.newest_ts !== stats.lastNewest) {
+      if (stats.lastNewest !== null) stats.latencies.push(received - snap.newest_ts);
+      stats.lastNewest = snap.newest_ts;
       if (stats.latencies.length > 5000) stats.latencies.shift();
     }
   };
 }
 
 function update(s) {
-  $("title").textContent = s.title || "";
+  put($("title"), s.title || "");
   const stale = $("stale");
-  if (s.last_rx_wall === null) { stale.hidden = false; stale.textContent = "no data yet"; }
+  if (s.last_rx_wall === null) { stale.hidden = false; put(stale, "no data yet"); }
   else if (s.stale_s > 1) {
     stale.hidden = false;
-    stale.textContent = `no data since ${new Date(s.last_rx_wall * 1000).toLocaleTimeString()}` + (s.source_ended ? " (the trace ended)" : "");
+    put(stale, `no data since ${new Date(s.last_rx_wall * 1000).toLocaleTimeString()}` + (s.source_ended ? " (the trace ended)" : ""));
   } else stale.hidden = true;
   const g = s.gait;
-  $("gait-state").textContent = g.state;
+  put($("gait-state"), g.state);
   if (window.viewStats.lastState !== g.state) {
     window.viewStats.lastState = g.state;
     window.viewStats.states.push(g.state);
   }
-  $("steps").textContent = g.steps;
-  $("cycles").textContent = g.cycles;
-  $("tick").textContent = s.tick === null ? "–" : s.tick;
-  $("bus-time").textContent = `${fmt(s.t, 1)} s`;
-  $("bus-load").textContent = `${fmt(100 * s.bus_load, 1)} %`;
-  $("x-ratio").textContent = s.estimate ? fmt(s.estimate.x_ratio) : "–";
-  $("landed").innerHTML = g.landed.map((st) => `<li value="${st.step}">${st.leg}: ${fmt(st.length_m, 3)} m at ${fmt(st.t, 1)} s</li>`).join("");
+  put($("steps"), g.steps);
+  put($("cycles"), g.cycles);
+  put($("tick"), s.tick === null ? "–" : s.tick);
+  put($("bus-time"), `${fmt(s.t, 1)} s`);
+  put($("bus-load"), `${fmt(100 * s.bus_load, 1)} %`);
+  put($("x-ratio"), s.estimate ? fmt(s.estimate.x_ratio) : "–");
+  put($("landed"), g.landed.map((st) => `<li value="${st.step}">${st.leg}: ${fmt(st.length_m, 3)} m at ${fmt(st.t, 1)} s</li>`).join(""), true);
   const st = g.controller_step;
-  $("commanded").textContent = st && st.commanded_m !== null ? `${fmt(st.commanded_m, 3)} m (step ${st.index})` : "–";
-  $("placed").textContent = st && st.placed_m !== null ? `${fmt(st.placed_m, 3)} m` : "–";
-  $("step-cost").textContent = st && st.cost_n !== null ? `${fmt(st.cost_n, 1)} N` : "–";
-  $("policy").textContent = st ? st.policy : "–";
+  put($("commanded"), st && st.commanded_m !== null ? `${fmt(st.commanded_m, 3)} m (step ${st.index})` : "–");
+  put($("placed"), st && st.placed_m !== null ? `${fmt(st.placed_m, 3)} m` : "–");
+  put($("step-cost"), st && st.cost_n !== null ? `${fmt(st.cost_n, 1)} N` : "–");
+  put($("policy"), st ? st.policy : "–");
   drawLearning(s.learning);
   addSamples(s.kind === "full", s.series);
   drawSagittal(s.estimate);
@@ -221,11 +232,15 @@ function drawPlots() {
 }
 
 function drawLearning(l) {
-  $("theta").textContent = l ? `${fmt(l.alpha, 2)}, ${fmt(l.xhat_com, 3)}` : "–";
-  $("update").textContent = l ? l.update : "–";
-  $("rollout").textContent = l ? l.rollout : "–";
-  $("cycle").textContent = l ? l.cycle : "–";
-  const canvas = $("plot-costs"), ctx = canvas.getContext("2d");
+  put($("theta"), l ? `${fmt(l.alpha, 2)}, ${fmt(l.xhat_com, 3)}` : "–");
+  put($("update"), l ? l.update : "–");
+  put($("rollout"), l ? l.rollout : "–");
+  put($("cycle"), l ? l.cycle : "–");
+  const canvas = $("plot-costs");
+  const key = JSON.stringify(l ? l.costs : null);
+  if (canvas.dataset.drawn === key) return;  // redrawn only when a cost comes
+  canvas.dataset.drawn = key;
+  const ctx = canvas.getContext("2d");
   ctx.clearRect(0, 0, canvas.width, canvas.height);
   const costs = l ? l.costs : [];
   canvas.dataset.points = costs.length;
@@ -243,17 +258,17 @@ function drawLearning(l) {
 // -- health ------------------------------------------------------------------------------------
 
 function drawNodes(s) {
-  $("nodes").tBodies[0].innerHTML = Object.entries(s.nodes).map(([name, n]) => {
+  put($("nodes").tBodies[0], Object.entries(s.nodes).map(([name, n]) => {
     const cls = n.drive_state === "FAULT" || n.error_code !== "NONE" ? "fault"
       : (n.nmt !== "OPERATIONAL" || (n.heartbeat_age_s !== null && n.heartbeat_age_s > 0.3)) ? "warn" : "";
     return `<tr class="${cls}" data-node="${name}"><td>${name}</td><td>${n.nmt}</td><td>${fmt(n.heartbeat_age_s)} s</td>` +
       `<td>${fmt(n.supply_v, 1)} V</td><td>${n.drive_state}</td><td class="error">${n.error_code}</td><td>${fmt(n.status_age_s)} s</td></tr>`;
-  }).join("");
-  $("emcy").innerHTML = s.emcy.map((e) => `<li>${fmt(e.t, 2)} s ${e.node}: ${e.code} (register ${e.register}, detail ${e.detail})</li>`).join("");
+  }).join(""), true);
+  put($("emcy"), s.emcy.map((e) => `<li>${fmt(e.t, 2)} s ${e.node}: ${e.code} (register ${e.register}, detail ${e.detail})</li>`).join(""), true);
   const r = s.receiver;
   const rows = [["accepted", r.accepted], ["lost (counter gaps)", r.lost],
     ...Object.entries(r.rejected_by_reason).map(([k, v]) => [`rejected: ${k}`, v])];
-  $("receiver").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${v}</td></tr>`).join("");
+  put($("receiver"), rows.map(([k, v]) => `<tr><th>${k}</th><td>${v}</td></tr>`).join(""), true);
 }
 
 connect();
