@@ -329,7 +329,8 @@ def test_a_browser_follows_a_walk_and_shows_a_node_fault(tmp_path):
     """Headless chromium (playwright) on the page of a lock-step walk paced at 4 times real time:
     the gait state goes through DOUBLE_SUPPORT and both swings, the CoM marker moves, the stick-force
     plot grows, and the right knee's drive fault (injected after the first gait cycle) appears in the
-    node table and the EMCY list; the page is saved as a screenshot."""
+    node table and the EMCY list; the page is saved as a screenshot. When the walk has ended the page
+    says "no data since ..." and recovers at the next frame."""
     from tools.view import browser
     from tools.pipeline import Pace, walk_config
     from tools.view.live import LiveView
@@ -360,6 +361,12 @@ def test_a_browser_follows_a_walk_and_shows_a_node_fault(tmp_path):
             emcy = page.text("#emcy")
             stats = page.stats()
             shot = page.screenshot(tmp_path / "view.png")
+            # The walk has ended: the page says so within a second or two, and recovers when frames return.
+            page.wait_for("!document.getElementById('stale').hidden", 5)
+            silent = page.text("#stale")
+            with virtual_bus(channel) as bus:
+                bus.send(Transmitter(Codec()).message("SYNC", (fault_tick + 100,)))
+            page.wait_for("document.getElementById('stale').hidden", 5)
     finally:
         walker.join()
         report = view.close()
@@ -373,11 +380,14 @@ def test_a_browser_follows_a_walk_and_shows_a_node_fault(tmp_path):
     assert px and px[-1] - px[0] > 20, px  # the CoM marker moved over the feet and sticks ...
     shown = sorted(float(r) for r in ratios if r != "–")
     assert shown and shown[-1] - shown[0] > 0.3, shown  # ... and through the support polygon
-    assert force_points[-1] > force_points[0] + 200 and force_points == sorted(force_points)
+    # the stick-force plot grew to its 10 s (500 ticks), never shrinking before
+    filling = force_points[:next((k for k, n in enumerate(force_points) if n >= 490), len(force_points))]
+    assert force_points[0] < 100 and force_points[-1] >= 490 and filling == sorted(filling), force_points
     assert "RIGHT_KNEE" in fault_row and "FAULT" in fault_row and "OVER_CURRENT" in fault_row, fault_row
     assert "RIGHT_KNEE" in emcy and "OVER_CURRENT" in emcy, emcy
     assert report["sends_refused"] == 0 and report["reader_error"] is None
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and shot.stat().st_size > 20_000
+    assert silent.startswith("no data since "), silent
 
 
 @pytest.mark.vcan

@@ -67,7 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="walks with the view in each setting, each between two without it (default 2: five walks a setting)")
     parser.add_argument("--max-ticks", type=int, help="end each walk after at most this many ticks (a short run)")
     parser.add_argument("--screenshot", metavar="PNG", type=Path,
-                        help="save the page as the walk beside the view ends (the README's picture: docs/img/view.png)")
+                        help="save the page as the last walk beside the view ends")
 
 
 def cpu_s(stat_path: str) -> float:
@@ -205,9 +205,8 @@ def _beside(cfg: Any, args: argparse.Namespace, say: Callable[[str], None]) -> d
                           lambda: cpu_s(f"/proc/{view.pid}/stat"), args.screenshot if last else None, nice=NICE)
         return seen, walked
 
-    result = _alternate(args, say, "beside the walk", lambda: _realtime_walk(cfg, args, channel), with_view,
-                        listener="the view process", what="aider-exo view as a third process")
-    return result
+    return _alternate(args, say, "beside the walk", lambda: _realtime_walk(cfg, args, channel), with_view,
+                      listener="the view process", what="aider-exo view as a third process")
 
 
 # -- in the walk's process (walk --view) -----------------------------------------------------------
