@@ -208,6 +208,10 @@ def _summary_text(s: dict[str, Any]) -> str:
     )
     if "render" in s:
         text += f"\n  wrote {s['render']['strip']} and {s['render']['gif']}"
+    if "view" in s:
+        v = s["view"]
+        text += (f"\n  live view at {v['url']}: {v['frames']} frames seen, {v['server']['connects']} browser connections, "
+                 f"{v['server']['snapshots']} updates sent")
     if s.get("patient_file"):
         text += f"\n  patient file {s['patient_file']['path']} ({s['patient_file']['writes']} writes)"
     return text
