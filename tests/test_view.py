@@ -166,6 +166,21 @@ def test_the_view_cannot_send_on_its_bus():
         assert bus.sends_refused == 1
 
 
+def test_a_stopped_reader_still_reads_the_frames_sent_before_the_stop(walked):
+    """A walk's view ends complete even when its reader lags: stopping it reads what is queued."""
+    from tools.view.source import BusReader
+
+    with virtual_bus("view-drain") as raw, virtual_bus("view-drain") as sender:
+        feed = make_feed(CFG)
+        reader = BusReader(ListenOnly(raw), feed)
+        for f in walked.frames[:3000]:
+            sender.send(f.to_message())
+        reader.stop()  # before it has read a frame
+        reader.start()
+        reader.join(timeout=30)
+    assert feed.model.frames == 3000 and reader.error is None
+
+
 # -- server ----------------------------------------------------------------------------------------
 
 

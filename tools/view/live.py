@@ -40,7 +40,7 @@ class LiveView:
         if linger_s > 0:
             self.clock.sleep_until(self.clock.now_ns() + int(linger_s * 1e9))
         self.reader.stop()
-        self.reader.join(timeout=2.0)
+        self.reader.join(timeout=self.reader.DRAIN_S + 2.0)
         self.server.close()
         self.bus.shutdown()
         return {"url": self.server.server.url, "frames": self.feed.model.frames, "server": self.server.server.stats.as_dict(),

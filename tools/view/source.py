@@ -68,12 +68,16 @@ class ListenOnly:
 
 
 class BusReader(threading.Thread):
-    """Reads ``bus`` until :meth:`stop`, every frame into ``feed``."""
+    """Reads ``bus`` until :meth:`stop`, every frame into ``feed``; at the stop, the frames already
+    queued too (those sent before it, for at most ``DRAIN_S``), so that a walk's view ends complete."""
+
+    DRAIN_S = 10.0
 
     def __init__(self, bus: ListenOnly, feed: Feed, *, poll_s: float = 0.1) -> None:
         super().__init__(name="aider-view-bus", daemon=True)
         self.bus, self.feed, self.poll_s = bus, feed, poll_s
         self._stop_event = threading.Event()
+        self._stopped_at = float("inf")
         self.error: str | None = None
 
     def run(self) -> None:
@@ -83,11 +87,16 @@ class BusReader(threading.Thread):
                 msg = recv(self.poll_s)
                 if msg is not None:
                     put(msg)
+            clock = MonotonicClock()
+            end_ns = clock.now_ns() + int(self.DRAIN_S * 1e9)
+            while clock.now_ns() < end_ns and (msg := recv(0.0)) is not None and msg.timestamp <= self._stopped_at:
+                put(msg)
         except (can.CanError, OSError, ValueError) as exc:  # the bus went away (shut down, interface gone)
             if not self._stop_event.is_set():
                 self.error = f"the bus reader stopped: {exc}"
 
     def stop(self) -> None:
+        self._stopped_at = epoch_s()  # bus timestamps are wall-clock times
         self._stop_event.set()
 
 
