@@ -82,9 +82,10 @@ def run(args: argparse.Namespace) -> int:
             asyncio.run(_serve(server, reader, args.duration, source))
     finally:
         reader.stop()
+        if reader.is_alive():
+            reader.join(timeout=15.0)  # a bus reader reads what came before the stop (at most 10 s)
         if bus is not None:
             bus.shutdown()
-    reader.join(timeout=2.0)
     snap = feed.snapshot()
     summary = {
         "source": source, "url": server.url, "frames": snap["frames"], "receiver": snap["receiver"],
