@@ -29,6 +29,7 @@ SUBCOMMANDS = {
     "experiment": "tools.cli.experiment",
     "soak": "tools.cli.soak",
     "view": "tools.cli.view",
+    "population": "tools.cli.population",
 }
 
 

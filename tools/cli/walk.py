@@ -39,6 +39,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--learn", action="store_true", help="learn the compensation online with PI² (saved to --patient's file)")
     p.add_argument("--patient", metavar="NAME", help="walk with (and, learning, update) this patient's learned parameters")
     p.add_argument("--patients-dir", metavar="DIR", help="folder of the patient files (default: controller.patients_dir)")
+    p.add_argument("--virtual-patient", metavar="FILE", type=Path,
+                   help="in-process only: walk this simulated patient (config/patients/*.yaml: body, arms, stick placement, "
+                        "the controller's body model; docs/POPULATION.md)")
     p.add_argument("--max-time", type=positive_float, metavar="S", help="simulated seconds before the walk counts as stalled")
     p.add_argument("--render", metavar="DIR", type=Path, help="in-process only: write a PNG strip and a GIF of the walk to DIR")
     p.add_argument("--log", metavar="FILE", help="the controller's per-tick telemetry as JSON lines")
@@ -104,6 +107,13 @@ def run(args: argparse.Namespace) -> int:
     if cfg.controller is None or cfg.sim is None or cfg.nodes is None:
         raise ConfigError("walking in simulation needs the controller, sim and nodes sections", key="controller")
     two_processes = cfg.bus.interface != "virtual"
+    if args.virtual_patient:
+        if two_processes:
+            raise ConfigError(f"--virtual-patient needs the simulation in this process (not --bus {cfg.bus.interface})",
+                              key="bus.interface")
+        from tools.population import load_patient
+
+        virtual_patient, cfg = load_patient(args.virtual_patient, cfg)
     if two_processes and args.render:
         raise ConfigError(f"--render needs the simulation in this process (not --bus {cfg.bus.interface})", key="bus.interface")
     # Exploration seeded from --seed (its own stream): a learning walk is as repeatable as any other.
@@ -160,6 +170,8 @@ def run(args: argparse.Namespace) -> int:
             saver.close()
     summary = outcome.summary()
     summary["cycles_asked"] = args.steps
+    if args.virtual_patient:
+        summary["virtual_patient"] = virtual_patient.name
     summary["bus"] = f"{cfg.bus.interface}:{cfg.bus.channel}" if two_processes else "virtual (in-process)"
     summary["telemetry"] = log_report
     if saver is not None:
@@ -197,7 +209,8 @@ def _summary_text(s: dict[str, Any]) -> str:
         f" (FAULT {s['fault']})" if s["fault"] else f" (HOLD {s['hold']})" if s["hold"] else
         f" (stalled{_waiting(s['patient'])})" if s["stalled"] else ""))
     text = (
-        f"{s['mode']} walk, {s['policy']} step length{'' if s['theta'] is None else ' theta ' + str(s['theta'])}, "
+        f"{s['mode']} walk{' of ' + s['virtual_patient'] if s.get('virtual_patient') else ''}, "
+        f"{s['policy']} step length{'' if s['theta'] is None else ' theta ' + str(s['theta'])}, "
         f"seed {s['seed']}: {s['cycles_completed']} of {s['cycles_asked']} gait cycles ({s['steps_completed']} steps), {fall}\n"
         f"  step length {lengths['mean']} m (min {lengths['min']}, max {lengths['max']}; as placed {placed['mean']} m, "
         f"min {placed['min']}, max {placed['max']}), mean stick force "

@@ -1,0 +1,176 @@
+"""Virtual patients (config/patients, tools/population.py): a patient file is a configuration whose
+simulated body, arms, stick placement and controller body model are the patient's; bad patient
+files fail at load with one line naming the file and the patient's key; a population is the same
+for the same seed and within its documented bounds."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from config import ConfigError, default_config_path, load_config
+from config.patient_schema import BMI_RANGE
+from sim.model import build_body
+from tools import population
+from tools.population import draw_population, fitted_body, load_patient, patient_config, patient_yaml, shipped_patients
+
+BASE = load_config(default_config_path())
+
+
+def _controller_value(cfg, dotted):
+    section, name = dotted.split(".")[1:]
+    return getattr(cfg.controller.body if section == "body" else cfg.controller.legs, name)
+
+
+def _assert_body_fits(cfg, model_cfg, tol=1e-3):
+    """``cfg``'s controller body model is the simulated patient of ``model_cfg``."""
+    off = {}
+    for key, want in fitted_body(model_cfg).items():
+        got = _controller_value(cfg, key)
+        if not np.allclose(np.atleast_1d(got), np.atleast_1d(want), rtol=tol, atol=tol):
+            off[key] = (got, want)
+    assert not off, off
+
+
+def test_the_default_controller_body_is_fitted_to_the_default_patient():
+    _assert_body_fits(BASE, BASE)
+
+
+def test_the_reference_patient_is_the_default_configuration():
+    patient, cfg = load_patient(population.PATIENTS_DIR / "reference.yaml", BASE)
+    assert cfg.sim == BASE.sim
+    _assert_body_fits(cfg, BASE)
+    assert dataclasses.replace(cfg.controller, body=BASE.controller.body, legs=BASE.controller.legs) == BASE.controller
+
+
+@pytest.mark.parametrize("path", shipped_patients(), ids=lambda p: p.stem)
+def test_every_shipped_patient_loads_and_its_body_is_built(path):
+    patient, cfg = load_patient(path, BASE)
+    assert patient.name == path.stem
+    body = build_body(cfg.sim.model)
+    assert cfg.sim.model.patient.mass_kg == patient.mass_kg and body.hip_height_m > 0.6
+    assert cfg.sim.patient.intention.regime == patient.placement.regime
+
+
+def test_a_patient_changes_the_body_the_arms_the_placement_and_the_fall_criterion():
+    patient, cfg = load_patient(population.PATIENTS_DIR / "small-light.yaml", BASE)
+    scale = patient.height_m / BASE.sim.model.patient.height_m
+    assert cfg.sim.model.patient.height_m == patient.height_m
+    assert cfg.sim.model.sticks.length_m == pytest.approx(BASE.sim.model.sticks.length_m * scale)
+    assert cfg.sim.model.patient.hip_width_m == pytest.approx(BASE.sim.model.patient.hip_width_m * scale)
+    assert cfg.sim.fall.min_hip_height_m == pytest.approx(BASE.sim.fall.min_hip_height_m * scale)
+    assert cfg.sim.model.joints.elbow.torque_limit_nm == pytest.approx(BASE.sim.model.joints.elbow.torque_limit_nm * 0.7)
+    assert cfg.sim.patient.arm_stiffness_nm_rad == pytest.approx(BASE.sim.patient.arm_stiffness_nm_rad * 0.7)
+    assert cfg.sim.model.joints.hip == BASE.sim.model.joints.hip  # the exoskeleton's motors are the device's
+    assert (cfg.sim.patient.intention.regime, cfg.sim.patient.stick_noise_m) == ("steady", 0.015)
+
+
+def test_the_controllers_body_model_is_the_patient_as_measured_with_the_fits_errors():
+    patient, cfg = load_patient(population.PATIENTS_DIR / "small-light.yaml", BASE)  # lengths 2 % long, 2 kg light
+    true = build_body(cfg.sim.model)
+    assert cfg.controller.legs.thigh_m == pytest.approx(true.thigh_m * 1.02)
+    assert cfg.controller.body.elbow_to_tip_m == pytest.approx((true.forearm_m + true.grip_m + true.stick_m) * 1.02)
+    total = (cfg.controller.body.trunk_kg + 2 * (cfg.controller.body.thigh_kg + cfg.controller.body.shank_kg
+                                                   + cfg.controller.body.foot_kg + cfg.controller.body.upper_arm_kg
+                                                   + cfg.controller.body.forearm_kg))
+    assert total == pytest.approx(true.total_mass_kg - 2.0, abs=1e-6)
+
+
+BAD = {
+    "a mass of 0": ({"mass_kg": 0}, "mass_kg: 0 is below the minimum 35"),
+    "a negative spread": ({"placement": {"spread_m": -0.01}}, "placement.spread_m: -0.01 is below the minimum 0"),
+    "sticks that cannot reach the floor": ({"stick_length_m": 0.55}, "stick_length_m: the sticks cannot reach the ground"),
+    "an implausible mass for the height": ({"mass_kg": 150, "height_m": 1.50}, "mass_kg: 150.0 kg at 1.5 m is a body mass index of 66.7"),
+    "a misspelt key": ({"arm_strenght": 1.0}, "arm_strenght"),
+    "a regime we do not know": ({"placement": {"regime": "wobbly"}}, "placement.regime"),
+    "a name with a slash": ({"name": "a/b"}, "name: 'a/b': give a name without slashes"),
+}
+
+
+@pytest.mark.parametrize("case", BAD, ids=list(BAD))
+def test_a_bad_patient_fails_at_load_naming_the_file_and_the_key(case, tmp_path):
+    import yaml
+
+    change, message = BAD[case]
+    data = yaml.safe_load((population.PATIENTS_DIR / "reference.yaml").read_text())
+    for key, value in change.items():
+        if isinstance(value, dict):
+            data[key] = {**data[key], **value}
+        else:
+            data[key] = value
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as err:
+        load_patient(path, BASE)
+    text = str(err.value)
+    assert text.startswith(str(path)) and message in text and "\n" not in text, text
+
+
+def test_a_population_is_the_same_for_its_seed_and_each_patient_independent_of_its_size():
+    eight = draw_population(8, seed=3)
+    assert eight == draw_population(8, seed=3)
+    assert draw_population(20, seed=3)[:8] == eight
+    assert eight != draw_population(8, seed=4)
+    assert [p.name for p in eight] == [f"pop3-{i:04d}" for i in range(8)]
+    with pytest.raises(ConfigError, match="at least one patient"):
+        draw_population(0, seed=3)
+
+
+def test_a_large_population_follows_its_documented_distributions():
+    people = draw_population(600, seed=0)
+    heights = np.array([p.height_m for p in people])
+    bmi = np.array([p.mass_kg / p.height_m**2 for p in people])
+    assert population.HEIGHT_RANGE_M[0] <= heights.min() and heights.max() <= population.HEIGHT_RANGE_M[1]
+    # a mix of the sexes' heights weighted by MALE_SHARE
+    mean = sum(share * population.HEIGHT_M[sex][0] for sex, share in (("male", population.MALE_SHARE), ("female", 1 - population.MALE_SHARE)))
+    assert heights.mean() == pytest.approx(mean, abs=0.015)
+    assert bmi.mean() == pytest.approx(population.BMI[0], abs=0.6) and BMI_RANGE[0] <= bmi.min() and bmi.max() <= BMI_RANGE[1]
+    regimes = [p.placement.regime for p in people]
+    for regime, share in population.REGIMES.items():
+        assert regimes.count(regime) / len(people) == pytest.approx(share, abs=0.06), regime
+    assert all(p.placement.spread_m == 0 for p in people if p.placement.regime == "steady")
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), index=st.integers(0, 10_000))
+def test_every_drawn_patient_makes_a_valid_configuration_and_round_trips_as_a_file(seed, index, tmp_path_factory):
+    patient = population.draw_patient(np.random.default_rng(np.random.SeedSequence([seed, index])), f"p{index}")
+    cfg = patient_config(BASE, patient)
+    assert build_body(cfg.sim.model).total_mass_kg > patient.mass_kg  # with the exoskeleton and sticks
+    path = tmp_path_factory.mktemp("pop") / "p.yaml"
+    path.write_text(patient_yaml(patient))
+    again, again_cfg = load_patient(path, BASE)
+    assert again == patient and again_cfg == cfg
+
+
+def test_walk_walks_a_virtual_patient_in_process_only(capsys):
+    import json
+
+    from tools.cli import main
+
+    path = str(population.PATIENTS_DIR / "small-light.yaml")
+    assert main(["walk", "--virtual-patient", path, "--steps", "1", "--json", "--quiet"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["virtual_patient"] == "small-light" and summary["cycles_completed"] == 1 and summary["falls"] == 0
+    assert main(["walk", "--virtual-patient", path, "--bus", "udp_multicast", "--channel", "239.74.163.2:40000", "--steps", "1"]) == 1
+    assert "--virtual-patient needs the simulation in this process" in capsys.readouterr().err
+
+
+def test_population_draw_writes_patient_files_that_load_as_drawn(tmp_path, capsys):
+    import json
+
+    from tools.cli import main
+
+    out = tmp_path / "pop"
+    assert main(["population", "draw", "--patients", "3", "--seed", "5", "--out", str(out), "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)
+    assert [p["name"] for p in listed["patients"]] == ["pop5-0000", "pop5-0001", "pop5-0002"]
+    for drawn, path in zip(draw_population(3, seed=5), sorted(out.glob("*.yaml"))):
+        assert load_patient(path, BASE)[0] == drawn
+    assert main(["population", "draw", "--patients", "3", "--seed", "5", "--out", str(out)]) == 1
+    assert "exists (and 2 more): give --overwrite" in capsys.readouterr().err
+    assert main(["population", "draw", "--patients", "3", "--seed", "5", "--out", str(out), "--overwrite"]) == 0
