@@ -17,6 +17,7 @@ BENCHMARKS = {
     "trace": "tools.bench.trace",
     "profile": "tools.bench.profile",
     "view": "tools.bench.view",
+    "executor": "tools.bench.executor",
 }
 
 

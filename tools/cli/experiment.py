@@ -30,7 +30,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         sp.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a configuration value, e.g. controller.learning.noise_alpha=0.5 (repeatable)")
         sp.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
-        sp.add_argument("--workers", type=int, default=2, help="worker processes (default 2; 0 runs in this process)")
+        sp.add_argument("--workers", type=int, default=2,
+                        help="worker processes (default 2; 0 runs in this process); with --executor ray and no --address, "
+                             "the local Ray instance's CPUs (0: all of this machine's)")
+        sp.add_argument("--executor", choices=("local", "ray"), default="local",
+                        help="local: a pool of worker processes here (default); ray: every walk a Ray task (docs/CLUSTER.md)")
+        sp.add_argument("--address", metavar="ADDR",
+                        help="--executor ray: the cluster to join (host:port, or auto); default: start a local Ray instance")
         sp.add_argument("--mode", choices=("sagittal", "full3d"), default="sagittal", help="simulation mode (default sagittal)")
         sp.add_argument("--fresh", action="store_true", help="discard the stored walks of OUT/cache first")
         sp.add_argument("--json", action="store_true", help="print summary.json on stdout")
@@ -103,7 +109,9 @@ def _plan(args: argparse.Namespace, **kw):
         raise ExperimentError(f"--workers must be >= 0, got {args.workers}")
     if args.fresh and (args.out / "cache").exists():
         shutil.rmtree(args.out / "cache")
-    return Plan(cfg=cfg, out=args.out, mode=args.mode, workers=args.workers, **kw)
+    if args.address and args.executor != "ray":
+        raise ExperimentError("--address is the Ray cluster's: give it with --executor ray")
+    return Plan(cfg=cfg, out=args.out, mode=args.mode, workers=args.workers, executor=args.executor, address=args.address, **kw)
 
 
 def _finish(args: argparse.Namespace, plan) -> int:
@@ -156,7 +164,8 @@ def _walk_batch(args: argparse.Namespace, plan, jobs) -> list:
     from tools.experiment.schedule import batch, drive
 
     bar = Progress(len(jobs), enabled=not args.quiet)
-    with StopSignals() as signals, WalkPool(plan.cfg, plan.workers, args.out / "cache", on_done=bar) as pool:
+    with StopSignals() as signals, WalkPool(plan.cfg, plan.workers, args.out / "cache", on_done=bar,
+                                            executor=plan.executor, address=plan.address) as pool:
         return drive(pool, {"batch": batch(jobs)}, stop=lambda: signals.requested)["batch"]
 
 

@@ -37,6 +37,8 @@ class Plan:
     compare_walks: int = 10
     mode: str = "sagittal"
     workers: int = 2
+    executor: str = "local"  # or "ray" (tools.experiment.cluster)
+    address: str | None = None  # the Ray cluster's; None: a local Ray instance
 
     def __post_init__(self) -> None:
         for s in self.starts:
@@ -105,7 +107,7 @@ def run(plan: Plan, progress: bool = True, stop: Callable[[], bool] | None = Non
     t0 = clock.now_ns()
     bar = Progress(plan.walks_planned(), enabled=progress, clock=clock)
     results = Results(plan)
-    with WalkPool(plan.cfg, plan.workers, plan.out / "cache", on_done=bar) as pool:
+    with WalkPool(plan.cfg, plan.workers, plan.out / "cache", on_done=bar, executor=plan.executor, address=plan.address) as pool:
         runs: dict[str, Run] = {
             f"{start}-s{seed}": learning_run(plan.cfg, start, seed, updates=plan.updates, mode=plan.mode)
             for seed in plan.seeds for start in plan.starts

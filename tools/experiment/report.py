@@ -56,6 +56,7 @@ def summary(res: Results) -> dict[str, Any]:
         "rollouts_per_update": plan.cfg.controller.learning.rollouts_per_update,
         "walks_run": res.walks_run, "walks_reused": res.walks_reused, "wall_time_s": round(res.wall_time_s, 1),
         "workers": plan.workers,
+        "executor": plan.executor,
     }
     if res.learning:
         out["learning"] = {"runs": [r.as_dict() for r in res.learning], "checks": learning_checks(res.learning, n, step_bounds(plan.cfg.controller), plan.updates)}

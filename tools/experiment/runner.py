@@ -175,14 +175,24 @@ def _run_in_worker(job: WalkJob) -> dict[str, Any]:
     return run_walk(_worker_cfg, job)
 
 
+EXECUTORS = ("local", "ray")
+
+
 class WalkPool:
-    """Runs walk jobs in ``workers`` processes (0: in this process), storing every result under
-    ``cache_dir`` by its key. ``submit`` returns a future; a stored result resolves at once."""
+    """Runs walk jobs in ``workers`` processes (0: in this process), or with ``executor="ray"`` as
+    Ray tasks (:mod:`tools.experiment.cluster`: on the cluster at ``address``, or a local Ray
+    instance of ``workers`` CPUs, this machine's when 0), storing every result under ``cache_dir``
+    by its key. ``submit`` returns a future; a stored result resolves at once."""
 
     def __init__(self, cfg: Config, workers: int, cache_dir: Path | None,
-                 on_done: Callable[[WalkJob, dict[str, Any], bool], None] | None = None) -> None:
+                 on_done: Callable[[WalkJob, dict[str, Any], bool], None] | None = None, *,
+                 executor: str = "local", address: str | None = None) -> None:
         if workers < 0:
             raise ExperimentError(f"workers must be >= 0, got {workers}")
+        if executor not in EXECUTORS:
+            raise ExperimentError(f"unknown executor {executor!r}: {' or '.join(EXECUTORS)}")
+        if address is not None and executor != "ray":
+            raise ExperimentError("an address is the Ray cluster's: give it with the ray executor")
         self.cfg = cfg
         self.digest = config_hash(cfg)
         self.cache_dir = cache_dir
@@ -191,11 +201,17 @@ class WalkPool:
         self.reused = 0
         if cache_dir is not None:
             cache_dir.mkdir(parents=True, exist_ok=True)
-        self._executor = (
-            cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_init_worker, initargs=(cfg,))
-            if workers > 0 else None
-        )
+        self._executor: Any = None
+        self._launch: Callable[[WalkJob], cf.Future] | None = None
+        if executor == "ray":
+            from tools.experiment.cluster import RayExecutor
+
+            self._executor = RayExecutor(cfg, address=address, num_cpus=workers or None)
+            self._launch = self._executor.submit
+        elif workers > 0:
+            self._executor = cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                                    initializer=_init_worker, initargs=(cfg,))
+            self._launch = lambda job: self._executor.submit(_run_in_worker, job)
 
     def __enter__(self) -> WalkPool:
         return self
@@ -209,7 +225,7 @@ class WalkPool:
         before = self.ran
         if self._executor is not None:
             self._executor.shutdown(wait=True, cancel_futures=True)
-            self._executor = None
+            self._executor, self._launch = None, None
         return self.ran - before
 
     def _path(self, job: WalkJob) -> Path | None:
@@ -236,11 +252,11 @@ class WalkPool:
             if self.on_done is not None:
                 self.on_done(job, result, True)
             return future
-        if self._executor is None:
+        if self._launch is None:
             inner: cf.Future = cf.Future()
             inner.set_result(run_walk(self.cfg, job))
         else:
-            inner = self._executor.submit(_run_in_worker, job)
+            inner = self._launch(job)
 
         def finished(f: cf.Future) -> None:
             if f.cancelled():  # the pool closed before it started
