@@ -38,11 +38,11 @@ def local_results():
 
 
 def _ray_task_pids() -> list[int]:
-    """Ray worker processes running a walk now (Ray titles them after the task)."""
+    """Ray worker processes running a walk now."""
     pids = []
     for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
         try:
-            if b"ray::_walk_task" in cmdline.read_bytes():
+            if cmdline.read_bytes().startswith(b"ray::_walk_task"):  # Ray titles a worker after its task
                 pids.append(int(cmdline.parent.name))
         except OSError:
             continue
@@ -57,29 +57,6 @@ def test_ray_gives_the_local_pools_results_field_for_field(local_results, tmp_pa
     # the cache is the local pool's: the same jobs resume from it without Ray
     with WalkPool(CFG, 0, tmp_path / "cache") as pool:
         assert _walk_all(pool) == json.loads(json.dumps(results)) and pool.reused == len(JOBS) and pool.ran == 0
-
-
-def test_a_ray_worker_killed_in_a_walk_is_retried_and_the_results_are_the_same(local_results):
-    killed: list[int] = []
-
-    def kill_one() -> None:
-        clock = MonotonicClock()
-        deadline = clock.now_ns() + 120_000_000_000  # a hang guard only
-        while not killed and clock.now_ns() < deadline:
-            pids = _ray_task_pids()
-            if pids:
-                os.kill(pids[0], signal.SIGKILL)
-                killed.append(pids[0])
-                return
-            clock.sleep_until(clock.now_ns() + 20_000_000)
-
-    with WalkPool(CFG, 2, None, executor="ray") as pool:
-        killer = threading.Thread(target=kill_one, daemon=True)
-        killer.start()
-        results = _walk_all(pool)
-        killer.join(timeout=5)
-    assert killed, "no Ray worker was seen running a walk"
-    assert [_comparable(r) for r in results] == [_comparable(r) for r in local_results]
 
 
 def test_without_ray_the_executor_names_the_extra(monkeypatch):
@@ -104,21 +81,6 @@ def test_an_address_needs_the_ray_executor_and_an_unknown_executor_is_refused():
         WalkPool(CFG, 2, None, executor="dask")
 
 
-def test_experiment_learn_with_ray_learns_what_the_local_pool_learns(tmp_path, capsys):
-    from tools.cli import main
-
-    small = ["experiment", "learn", "--init", "A", "--updates", "1", "--set", "controller.learning.steps_per_rollout=1",
-             "--set", "controller.learning.rollouts_per_update=2", "--json", "--quiet"]
-    summaries = {}
-    for executor in ("local", "ray"):
-        assert main(small + ["--executor", executor, "--out", str(tmp_path / executor)]) == 0
-        summaries[executor] = json.loads(capsys.readouterr().out)
-    assert summaries["ray"]["executor"] == "ray" and summaries["ray"]["walks_run"] == 4
-    assert summaries["ray"]["learning"] == summaries["local"]["learning"]
-    assert main(small + ["--address", "auto", "--out", str(tmp_path / "x")]) == 1
-    assert "--address is the Ray cluster's" in capsys.readouterr().err
-
-
 def test_the_executor_benchmark_times_both_on_the_same_plan(capsys):
     from tools.cli import main
 
@@ -128,3 +90,51 @@ def test_the_executor_benchmark_times_both_on_the_same_plan(capsys):
     assert all(r[k]["seconds_after_startup"] <= r[k]["seconds_with_startup"] for k in ("local", "ray"))
     rows = r["sizing"]["populations"]
     assert [row["patients"] for row in rows] == [20, 100, 1000] and rows[2]["walks"] == 1000 * r["sizing"]["walks_per_patient"]
+
+
+# -- a small population plan: 2 patients, one update of 2 roll-outs of 1 cycle, 1 walk per gait ----
+
+SMALL = ["--patients", "2", "--seed", "0", "--updates", "1", "--walks", "1", "--set", "controller.learning.steps_per_rollout=1",
+         "--set", "controller.learning.rollouts_per_update=2", "--json", "--quiet"]
+#: what differs between two runs of the same plan: the machine's time, and the executor named
+RUN_FIELDS = ("wall_time_s", "executor")
+
+
+def _population(out: Path, capsys, *extra: str) -> dict:
+    from tools.cli import main
+
+    assert main(["experiment", "population", *SMALL, "--out", str(out), *extra]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    return {k: v for k, v in summary.items() if k not in RUN_FIELDS}
+
+
+def test_a_population_on_ray_is_the_local_populations_field_for_field(tmp_path, capsys):
+    local = _population(tmp_path / "local", capsys)
+    ray_run = _population(tmp_path / "ray", capsys, "--executor", "ray")
+    assert local["walks_run"] == ray_run["walks_run"] == 2 * local["walks_per_patient"]
+    assert ray_run == local
+    patients = {p["patient"]["name"] for p in local["by_patient"]}
+    assert patients == {"pop0-0000", "pop0-0001"}
+
+
+def test_a_ray_worker_killed_in_a_walk_is_retried_and_the_population_is_the_same(tmp_path, capsys):
+    local = _population(tmp_path / "local", capsys)
+    killed: list[int] = []
+
+    def kill_one() -> None:
+        clock = MonotonicClock()
+        deadline = clock.now_ns() + 120_000_000_000  # a hang guard only
+        while not killed and clock.now_ns() < deadline:
+            pids = _ray_task_pids()
+            if pids:
+                os.kill(pids[0], signal.SIGKILL)
+                killed.append(pids[0])
+                return
+            clock.sleep_until(clock.now_ns() + 20_000_000)
+
+    killer = threading.Thread(target=kill_one, daemon=True)
+    killer.start()
+    ray_run = _population(tmp_path / "ray", capsys, "--executor", "ray")
+    killer.join(timeout=5)
+    assert killed, "no Ray worker was seen running a walk"
+    assert ray_run == local

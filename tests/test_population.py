@@ -174,3 +174,18 @@ def test_population_draw_writes_patient_files_that_load_as_drawn(tmp_path, capsy
     assert main(["population", "draw", "--patients", "3", "--seed", "5", "--out", str(out)]) == 1
     assert "exists (and 2 more): give --overwrite" in capsys.readouterr().err
     assert main(["population", "draw", "--patients", "3", "--seed", "5", "--out", str(out), "--overwrite"]) == 0
+
+
+def test_updates_to_converge_is_the_first_update_from_which_the_cost_stays_within_5_percent():
+    from tools.experiment.learn import LearningRun, Update
+    from tools.experiment.population import updates_to_converge
+
+    def run(costs, last_end="walked"):
+        r = LearningRun(start="A", seed=0, theta0=(-1.0, 0.6))
+        r.updates = [Update(index=i, theta=(0, 0), evaluation_theta=(0, 0), evaluation_cost=c, evaluation_cycles=10,
+                            evaluation_end="walked" if i < len(costs) - 1 else last_end) for i, c in enumerate(costs)]
+        return r
+
+    assert updates_to_converge(run([5000, 300, 210, 200, 205])) == 2
+    assert updates_to_converge(run([300, 300, 300])) == 0
+    assert updates_to_converge(run([5000, 300, 5000], last_end="backward fall")) is None  # nothing to converge to

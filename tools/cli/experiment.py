@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import shutil
 import sys
 from pathlib import Path
@@ -88,6 +89,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                          "tips (planted), or by the patient's intention (the physics alone)")
     ip.set_defaults(func=run_intention)
 
+    pp = xsub.add_parser("population", help="per virtual patient: learning from A, then the learned gait against fixed step lengths",
+                         description="Draws N virtual patients for a seed (docs/POPULATION.md; or takes patient files), and for each "
+                                     "learns from the paper's start A, then compares the learned gait with the fixed step lengths "
+                                     "0.10-0.20 m on that patient. The report gives the distribution over the patients: the stick "
+                                     "force against the best fixed length that never fell, falls per gait, updates to converge, and "
+                                     "the learned theta against the patient; figures, CSV, summary.json.")
+    common(pp)
+    pp.add_argument("--patients", type=positive_int, default=8, metavar="N", help="patients to draw (default 8)")
+    pp.add_argument("--seed", type=int, default=0, help="the population's seed (default 0)")
+    pp.add_argument("--patient-file", type=Path, action="append", metavar="FILE",
+                    help="a patient file (config/patients/*.yaml) instead of drawing; repeatable")
+    pp.add_argument("--updates", type=positive_int, default=15, help="PI² updates per patient (default 15)")
+    pp.add_argument("--walks", type=positive_int, default=10, help="walks (seeds) per gait in each comparison (default 10)")
+    pp.set_defaults(func=run_population)
+
     ap = xsub.add_parser("all", help="learning from A and B, then the comparison with the learned theta; figures, CSV, report")
     common(ap)
     seeds(ap)
@@ -118,7 +134,7 @@ def _finish(args: argparse.Namespace, plan) -> int:
     from tools.experiment import experiment
     from tools.experiment.report import write_all
 
-    with StopSignals() as signals:
+    with StopSignals() as signals, _stdout_for_the_report():
         res = experiment.run(plan, progress=not args.quiet, stop=lambda: signals.requested)
     s = write_all(res, args.out)
     if args.json:
@@ -164,9 +180,15 @@ def _walk_batch(args: argparse.Namespace, plan, jobs) -> list:
     from tools.experiment.schedule import batch, drive
 
     bar = Progress(len(jobs), enabled=not args.quiet)
-    with StopSignals() as signals, WalkPool(plan.cfg, plan.workers, args.out / "cache", on_done=bar,
-                                            executor=plan.executor, address=plan.address) as pool:
+    with StopSignals() as signals, _stdout_for_the_report(), WalkPool(plan.cfg, plan.workers, args.out / "cache", on_done=bar,
+                                                                      executor=plan.executor, address=plan.address) as pool:
         return drive(pool, {"batch": batch(jobs)}, stop=lambda: signals.requested)["batch"]
+
+
+def _stdout_for_the_report():
+    """While the walks run, what anything writes to stdout goes to stderr: stdout is the report's
+    and ``--json``'s alone (Ray's driver prints a dead worker's notice to stdout)."""
+    return contextlib.redirect_stdout(sys.stderr)
 
 
 def _print(args: argparse.Namespace, summary: dict, lines: list[str], files: str) -> int:
@@ -205,3 +227,29 @@ def run_intention(args: argparse.Namespace) -> int:
     jobs = intention_jobs(seed=args.seed, walks=args.walks, lengths_m=grid, cycles=plan.cycles, mode=args.mode)
     s = write_intention(_walk_batch(args, plan, jobs), args.out, args.bins, args.bin_by)
     return _print(args, s, report_lines(s), "intention.csv, intention.json, intention.md, intention.png")
+
+
+def run_population(args: argparse.Namespace) -> int:
+    from config.loader import load_as
+    from config.patient_schema import VirtualPatient
+    from tools.experiment import population
+    from tools.experiment.experiment import Progress
+    from tools.experiment.population_report import write_population
+    from tools.population import draw_population, patient_config
+
+    base = _plan(args)  # the configuration, the executor and the checks every experiment shares
+    if args.patient_file:
+        patients = [load_as(VirtualPatient, f) for f in args.patient_file]
+        for patient, f in zip(patients, args.patient_file):
+            patient_config(base.cfg, patient, source=str(f))  # a patient the model cannot build fails now, naming its file
+    else:
+        patients = draw_population(args.patients, args.seed)
+    plan = population.PopulationPlan(cfg=base.cfg, out=args.out, patients=patients, seed=args.seed, updates=args.updates,
+                                     compare_walks=args.walks, mode=args.mode, workers=args.workers, executor=args.executor,
+                                     address=args.address)
+    bar = Progress(len(patients) * plan.walks_per_patient(), enabled=not args.quiet)
+    with StopSignals() as signals, _stdout_for_the_report():
+        res = population.run(plan, on_done=bar, stop=lambda: signals.requested)
+    s = write_population(res, args.out)
+    return _print(args, s, (args.out / "report.md").read_text().splitlines(),
+                  "summary.json, patients.csv, gaits.csv, population-gaits.png, population-theta.png, report.md")

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from config import AiderError, Config, config_hash
+from config.patient_schema import VirtualPatient
 
 #: the stored result's format, part of every job's key: a result whose meaning changes gets a new
 #: number, and the walks of an older format are run again (/4: X_CoM/X_SP is the compensation's,
@@ -53,6 +54,7 @@ class WalkJob:
     theta: tuple[float, float] | None = None
     mode: str = "sagittal"
     random_m: tuple[float, float] | None = None
+    patient: VirtualPatient | None = None  # a virtual patient (tools.population); None: the configuration's own
 
     def __post_init__(self) -> None:
         if sum(x is not None for x in (self.fixed_m, self.theta, self.random_m)) != 1:
@@ -68,10 +70,18 @@ class WalkJob:
             return f"random {self.random_m[0]:.2f}-{self.random_m[1]:.2f} m"
         return f"theta ({self.theta[0]:.3f}, {self.theta[1]:.3f})"
 
+    def as_dict(self) -> dict[str, Any]:
+        """The job as JSON-ready data (without ``patient`` when there is none: the keys of the walks
+        stored before virtual patients stay valid)."""
+        data = asdict(self)
+        if data["patient"] is None:
+            del data["patient"]
+        return data
+
     def key(self, cfg_digest: str) -> str:
         """The name of this job's result: its fields, the configuration, the software version and the
         result's format."""
-        text = json.dumps({"job": asdict(self), "config": cfg_digest, "software": _software_version(), "format": RESULT_FORMAT},
+        text = json.dumps({"job": self.as_dict(), "config": cfg_digest, "software": _software_version(), "format": RESULT_FORMAT},
                           sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:24]
 
@@ -91,6 +101,10 @@ def run_walk(cfg: Config, job: WalkJob) -> dict[str, Any]:
     from tools.experiment.falls import RandomLengths
     from tools.pipeline import walk
 
+    if job.patient is not None:
+        from tools.population import patient_config
+
+        cfg = patient_config(cfg, job.patient)
     bounds = step_bounds(cfg.controller)
     if job.fixed_m is not None:
         policy = StepPolicy(bounds, fixed_m=job.fixed_m)
@@ -107,7 +121,7 @@ def run_walk(cfg: Config, job: WalkJob) -> dict[str, Any]:
     complete = len(landed) >= 2 * job.cycles
     return {
         "format": RESULT_FORMAT,
-        "job": asdict(job),
+        "job": job.as_dict(),
         "cycles_completed": outcome.cycles_completed,
         "steps_completed": len(landed),
         "complete": complete,
@@ -239,7 +253,7 @@ class WalkPool:
             result = json.loads(path.read_text())
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise ExperimentError(f"{path}: unreadable walk result ({exc}); delete it to run that walk again") from None
-        if not isinstance(result, dict) or result.get("format") != RESULT_FORMAT or result.get("job") != json.loads(json.dumps(asdict(job))):
+        if not isinstance(result, dict) or result.get("format") != RESULT_FORMAT or result.get("job") != json.loads(json.dumps(job.as_dict())):
             raise ExperimentError(f"{path}: not the result of {job}; delete it to run that walk again")
         return result
 
