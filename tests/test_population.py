@@ -189,3 +189,28 @@ def test_updates_to_converge_is_the_first_update_from_which_the_cost_stays_withi
     assert updates_to_converge(run([5000, 300, 210, 200, 205])) == 2
     assert updates_to_converge(run([300, 300, 300])) == 0
     assert updates_to_converge(run([5000, 300, 5000], last_end="backward fall")) is None  # nothing to converge to
+
+
+def test_a_walk_that_raises_ends_only_its_own_run_and_is_reported_with_its_seed():
+    import concurrent.futures as cf
+
+    from tools.experiment.runner import WalkJob
+    from tools.experiment.schedule import RunFailed, batch, drive
+
+    class Pool:
+        cache_dir = None
+
+        def submit(self, job):
+            f = cf.Future()
+            if job.seed == 13:
+                f.set_exception(RuntimeError("pybullet said no"))
+            else:
+                f.set_result({"seed": job.seed})
+            return f
+
+    good, bad = [WalkJob(seed=1, cycles=1, fixed_m=0.12)], [WalkJob(seed=13, cycles=1, fixed_m=0.14)]
+    out = drive(Pool(), {"good": batch(good), "bad": batch(bad)}, keep_going=True)
+    assert out["good"] == [{"seed": 1}]
+    assert out["bad"] == RunFailed("bad", "fixed 0.14 m, seed 13", "pybullet said no")
+    with pytest.raises(RuntimeError, match="pybullet said no"):  # without keep_going: the experiment ends
+        drive(Pool(), {"good": batch(good), "bad": batch(bad)})

@@ -22,7 +22,7 @@ from protocol.clock import MonotonicClock
 from tools.experiment.compare import ADAPTIVE, FIXED_LENGTHS_M, GaitStats, compare_jobs, comparison
 from tools.experiment.learn import LearningRun, learning_run, walk_seed
 from tools.experiment.runner import ExperimentError, WalkPool
-from tools.experiment.schedule import Run, drive
+from tools.experiment.schedule import Run, RunFailed, drive
 
 START = "A"  # the paper's start the population learns from
 CONVERGED_WITHIN = 0.05  # an update is converged when every later noise-free cost is within 5 % of the last
@@ -139,6 +139,7 @@ def patient_run(plan: PopulationPlan, index: int) -> Run:
 class PopulationResults:
     plan: PopulationPlan
     outcomes: list[PatientOutcome] = field(default_factory=list)
+    failed: list[RunFailed] = field(default_factory=list)  # patients one of whose walks raised
     walks_run: int = 0
     walks_reused: int = 0
     wall_time_s: float = 0.0
@@ -152,8 +153,10 @@ def run(plan: PopulationPlan, *, on_done: Callable | None = None, stop: Callable
     with WalkPool(plan.cfg, plan.workers, plan.out / "cache", on_done=on_done,
                   executor=plan.executor, address=plan.address) as pool:
         runs = {p.name: patient_run(plan, i) for i, p in enumerate(plan.patients)}
-        outcomes = drive(pool, runs, stop)
-        results.outcomes = [outcomes[p.name] for p in plan.patients]
+        outcomes = drive(pool, runs, stop, keep_going=True)  # a walk that raises ends its patient's run only
+        done = [outcomes[p.name] for p in plan.patients]
+        results.outcomes = [o for o in done if isinstance(o, PatientOutcome)]
+        results.failed = [o for o in done if isinstance(o, RunFailed)]
         results.walks_run, results.walks_reused = pool.ran, pool.reused
     results.wall_time_s = (clock.now_ns() - t0) / 1e9
     return results

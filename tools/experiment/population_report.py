@@ -27,19 +27,24 @@ def summary(res: PopulationResults) -> dict[str, Any]:
     beat = [p["adaptive_beats_best_fixed"] for p in patients]
     reductions = [p["stick_force_reduction_pct"] for p in patients if p["stick_force_reduction_pct"] is not None]
     return {
-        "experiment": "population", "seed": plan.seed, "patients": len(patients), "start": START, "updates": plan.updates,
+        "experiment": "population", "seed": plan.seed, "patients": len(plan.patients), "start": START, "updates": plan.updates,
         "cycles_per_rollout": plan.cycles, "compare_walks": plan.compare_walks, "mode": plan.mode,
         "walks_per_patient": plan.walks_per_patient(), "walks_run": res.walks_run, "walks_reused": res.walks_reused,
         "wall_time_s": round(res.wall_time_s, 1), "workers": plan.workers, "executor": plan.executor,
+        "failed": [{"patient": f.name, "walk": f.walk, "error": f.error} for f in res.failed],
         "distribution": {
             "adaptive_beats_best_fixed": sum(beat),
             "no_fixed_length_without_falls": sum(p["best_fixed"] is None for p in patients),
             "stick_force_reduction_pct": _quartiles(reductions),
             "updates_to_converge": _quartiles([p["updates_to_converge"] for p in patients if p["updates_to_converge"] is not None]),
-            "falls_by_gait": {g: sum(p["falls_by_gait"].get(g, 0) for p in patients) for g in patients[0]["falls_by_gait"]},
+            "falls_by_gait": {g: sum(p["falls_by_gait"].get(g, 0) for p in patients) for g in _gaits(patients)},
         },
         "by_patient": patients,
     }
+
+
+def _gaits(patients: list[dict[str, Any]]) -> list[str]:
+    return [g["gait"] for g in patients[0]["gaits"]] if patients else []
 
 
 def _quartiles(values: list[float]) -> dict[str, Any]:
@@ -58,8 +63,9 @@ def write_population(res: PopulationResults, out: Path) -> dict[str, Any]:
     _write(out / "patients.csv", _csv([_patient_row(p) for p in s["by_patient"]]))
     _write(out / "gaits.csv", _csv([{"patient": p["patient"]["name"], **{k: g[k] for k in GAIT_COLUMNS}}
                                    for p in s["by_patient"] for g in p["gaits"]]))
-    _figure_gaits(s, out / "population-gaits.png")
-    _figure_theta(s, out / "population-theta.png")
+    if s["by_patient"]:
+        _figure_gaits(s, out / "population-gaits.png")
+        _figure_theta(s, out / "population-theta.png")
     _write(out / "report.md", report(s))
     return s
 
@@ -78,13 +84,9 @@ def _patient_row(p: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def _gait_order(s: dict[str, Any]) -> list[str]:
-    return [g["gait"] for g in s["by_patient"][0]["gaits"]]
-
-
 def _figure_gaits(s: dict[str, Any], path: Path) -> None:
     """Per gait, over the patients: the mean stick force (a box) and the falls (a bar)."""
-    gaits = _gait_order(s)
+    gaits = _gaits(s["by_patient"])
     labels = ["adaptive" if g == ADAPTIVE else f"{g} m" for g in gaits]
     forces = [[g["stick_force_mean_n"] for p in s["by_patient"] for g in p["gaits"] if g["gait"] == name
                and g["stick_force_mean_n"] is not None] for name in gaits]
@@ -95,7 +97,7 @@ def _figure_gaits(s: dict[str, Any], path: Path) -> None:
         ax[0, 0].scatter(np.full(len(f), i) + 0.15, f, s=10, color="tab:green" if gaits[i] == ADAPTIVE else "tab:gray", zorder=3)
     ax[0, 0].set(title="mean stick force per patient", ylabel="N")
     falls = [s["distribution"]["falls_by_gait"][g] for g in gaits]
-    walks = s["compare_walks"] * s["patients"]
+    walks = s["compare_walks"] * len(s["by_patient"])
     ax[0, 1].bar(positions, falls, color=["tab:green" if g == ADAPTIVE else "tab:gray" for g in gaits])
     ax[0, 1].set(title=f"walks that fell, of {walks} per gait", ylabel="walks")
     for a in ax.flat:
@@ -134,7 +136,7 @@ def report(s: dict[str, Any]) -> str:
         f"{s['compare_walks']} walks each. {s['walks_run']} walks run and {s['walks_reused']} reused in "
         f"{s['wall_time_s'] / 60:.1f} min on {s['workers']} workers ({s['executor']}).", "",
         f"* The learned gait beat the best fixed step length that never fell (less stick force, no more falls) "
-        f"for **{d['adaptive_beats_best_fixed']} of {s['patients']}** patients; "
+        f"for **{d['adaptive_beats_best_fixed']} of {len(s['by_patient'])}** patients; "
         f"{d['no_fixed_length_without_falls']} had no fixed length without a fall.",
         (f"* Stick force against that length, falls aside: median {red['median']} % less (quartiles {red['q1']} to {red['q3']} %, "
          f"{red['n']} patients)." if red["n"] else "* No patient had a fixed length to compare with."),
@@ -151,6 +153,9 @@ def report(s: dict[str, Any]) -> str:
             f"| {p['best_fixed'] or '–'} | {p['best_fixed_stick_force_n'] or '–'} | "
             f"{'–' if p['stick_force_reduction_pct'] is None else str(p['stick_force_reduction_pct']) + ' %'} | "
             f"{'yes' if p['adaptive_beats_best_fixed'] else 'no'} | {a['falls']} of {a['walks']} |")
+    if s["failed"]:
+        lines += ["", f"**{len(s['failed'])} patient(s) did not finish: a walk raised** (a software error, not a fall):"]
+        lines += [f"* {f['patient']}: the walk {f['walk']}: {f['error']}" for f in s["failed"]]
     lines += ["", "![Stick force and falls per gait](population-gaits.png)", "",
               "![The learned theta against the patient](population-theta.png)", ""]
     return "\n".join(lines)
