@@ -100,25 +100,34 @@ SMALL = ["--patients", "2", "--seed", "0", "--updates", "1", "--walks", "1", "--
 RUN_FIELDS = ("wall_time_s", "executor")
 
 
-def _population(out: Path, capsys, *extra: str) -> dict:
+def _population(out: Path, *extra: str) -> dict:
+    import contextlib
+    import io
+
     from tools.cli import main
 
-    assert main(["experiment", "population", *SMALL, "--out", str(out), *extra]) == 0
-    summary = json.loads(capsys.readouterr().out)
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(["experiment", "population", *SMALL, "--out", str(out), *extra]) == 0
+    summary = json.loads(printed.getvalue())
     return {k: v for k, v in summary.items() if k not in RUN_FIELDS}
 
 
-def test_a_population_on_ray_is_the_local_populations_field_for_field(tmp_path, capsys):
-    local = _population(tmp_path / "local", capsys)
-    ray_run = _population(tmp_path / "ray", capsys, "--executor", "ray")
+@pytest.fixture(scope="module")
+def local_population(tmp_path_factory):
+    return _population(tmp_path_factory.mktemp("local-population"))
+
+
+def test_a_population_on_ray_is_the_local_populations_field_for_field(local_population, tmp_path):
+    local = local_population
+    ray_run = _population(tmp_path / "ray", "--executor", "ray")
     assert local["walks_run"] == ray_run["walks_run"] == 2 * local["walks_per_patient"]
     assert ray_run == local
     patients = {p["patient"]["name"] for p in local["by_patient"]}
     assert patients == {"pop0-0000", "pop0-0001"}
 
 
-def test_a_ray_worker_killed_in_a_walk_is_retried_and_the_population_is_the_same(tmp_path, capsys):
-    local = _population(tmp_path / "local", capsys)
+def test_a_ray_worker_killed_in_a_walk_is_retried_and_the_population_is_the_same(local_population, tmp_path):
     killed: list[int] = []
 
     def kill_one() -> None:
@@ -134,7 +143,7 @@ def test_a_ray_worker_killed_in_a_walk_is_retried_and_the_population_is_the_same
 
     killer = threading.Thread(target=kill_one, daemon=True)
     killer.start()
-    ray_run = _population(tmp_path / "ray", capsys, "--executor", "ray")
+    ray_run = _population(tmp_path / "ray", "--executor", "ray")
     killer.join(timeout=5)
     assert killed, "no Ray worker was seen running a walk"
-    assert ray_run == local
+    assert ray_run == local_population

@@ -19,7 +19,7 @@ from typing import Any
 from config import Config, config_to_dict
 from config.patient_schema import VirtualPatient
 from protocol.clock import MonotonicClock
-from tools.experiment.compare import ADAPTIVE, FIXED_LENGTHS_M, GaitStats, compare_jobs, comparison
+from tools.experiment.compare import ADAPTIVE, GaitStats, compare_jobs, comparison
 from tools.experiment.learn import LearningRun, learning_run, walk_seed
 from tools.experiment.runner import ExperimentError, WalkPool
 from tools.experiment.schedule import Run, RunFailed, drive
@@ -55,8 +55,11 @@ class PopulationPlan:
         return self.cfg.controller.learning.steps_per_rollout
 
     def walks_per_patient(self) -> int:
-        k = self.cfg.controller.learning.rollouts_per_update
-        return self.updates * (k + 1) + 1 + (len(FIXED_LENGTHS_M) + 1) * self.compare_walks
+        """Learning from START and the comparison: what ``experiment all`` plans for one start."""
+        from tools.experiment.experiment import Plan
+
+        return Plan(cfg=self.cfg, out=self.out, starts=[START], updates=self.updates, compare=True,
+                    compare_walks=self.compare_walks).walks_planned()
 
 
 @dataclass
