@@ -138,7 +138,7 @@ class BodyConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class EnvelopeConfig:
-    """The safety envelope every joint command passes before it is encoded (FAULTS.md I1).
+    """The safety envelope every joint command passes before it is encoded (docs/FAULTS.md I1).
 
     A value beyond the envelope is clamped and reported; beyond it by more than the excess
     allowance it is a fault (a wrong trajectory is not hidden by saturation)."""
@@ -149,17 +149,17 @@ class EnvelopeConfig:
     max_torque_nm: float = field_spec(doc="Largest torque feed-forward and torque limit sent.", unit="N.m", min=1.0, max=200.0)
     position_excess_rad: float = field_spec(doc="A setpoint this far beyond the envelope is a fault.", unit="rad", min=0.0, max=1.0)
     rate_excess_factor: float = field_spec(
-        doc="A speed, setpoint step or torque this many times its bound is a fault (FAULTS.md F17: 1.2).", min=1.0, max=5.0
+        doc="A speed, setpoint step or torque this many times its bound is a fault (docs/FAULTS.md F17: 1.2).", min=1.0, max=5.0
     )
 
 
 @dataclass(frozen=True, kw_only=True)
 class SafetyConfig:
-    """Detection budgets of the fault table (FAULTS.md section 3, docs/SAFETY.md), each with a hard bound."""
+    """Detection budgets of the fault table (docs/FAULTS.md section 3, docs/SAFETY.md), each with a hard bound."""
 
-    lost_ticks: int = field_spec(doc="A node without a valid JOINT_STATUS for this many ticks in a row is lost: FAULT (F1-F3, F9; FAULTS.md: at most 5).", min=1, max=5)
+    lost_ticks: int = field_spec(doc="A node without a valid JOINT_STATUS for this many ticks in a row is lost: FAULT (F1-F3, F9; docs/FAULTS.md: at most 5).", min=1, max=5)
     integrity_errors: int = field_spec(doc="This many frames of the nodes rejected for their CRC or counter sequence ...", min=1, max=10)
-    integrity_window_ticks: int = field_spec(doc="... within this many ticks: FAULT (F6-F8; FAULTS.md: 2 in 5). Any error frame in the window: no new step (F11).", min=1, max=50)
+    integrity_window_ticks: int = field_spec(doc="... within this many ticks: FAULT (F6-F8; docs/FAULTS.md: 2 in 5). Any error frame in the window: no new step (F11).", min=1, max=50)
     send_failure_ticks: int = field_spec(doc="A send that fails in this many ticks in a row: FAULT (F12, F13).", min=1, max=5)
     overrun_limit: int = field_spec(doc="This many overrun ticks ...", min=1, max=50)
     overrun_window_ticks: int = field_spec(doc="... within this many ticks, or one overrun of more than overrun_max_ticks: HOLD (F25).", min=10, max=1000)

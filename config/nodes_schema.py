@@ -68,7 +68,7 @@ class FaultConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class NodesConfig:
-    """The four emulated node boards (CANopen-style firmware, FAULTS.md)."""
+    """The four emulated node boards (CANopen-style firmware, docs/FAULTS.md)."""
 
     command_timeout_ticks: int = field_spec(
         doc=(

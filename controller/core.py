@@ -12,7 +12,7 @@ state every tick and runs the gait: in DOUBLE_SUPPORT and the swings the legs fo
 :class:`~controller.gait.GaitPlanner` (weight shift, lean, DMP swing), every other state holds them
 (HOLD commands). The step length of each swing comes from the :class:`~controller.policy.StepPolicy`
 (fixed, compensated, or learning) with X_CoM/X_SP estimated at the swing's start. The budgets are the
-configuration's ``controller.safety`` (docs/SAFETY.md lists every row of FAULTS.md). FAULT latches
+configuration's ``controller.safety`` (docs/SAFETY.md lists every row of docs/FAULTS.md). FAULT latches
 on a lost node (no status for ``lost_ticks`` ticks), a drive fault or a fault EMCY, a node that
 reboots, a command beyond the safety envelope, a fall (trunk tilt beyond ``fall_tilt_rad`` for
 ``fall_ticks`` ticks, F18), an encoder stuck while its setpoint moves away from it (F14), a measured joint angle beyond its limit by more than the
@@ -153,7 +153,7 @@ class ControllerCore:
     # -- input -----------------------------------------------------------------------------------
 
     def _age(self, frame_id: int, counter: int, queued: bool = False) -> int:
-        """How many SYNCs late a per-SYNC frame is, from its alive counter (FAULTS.md F4, I5).
+        """How many SYNCs late a per-SYNC frame is, from its alive counter (docs/FAULTS.md F4, I5).
 
         A node sends each of its per-SYNC frames once per SYNC with the next counter, so an on-time
         frame keeps (SYNC index - counter) mod 16 constant; a lost frame keeps it too (both advance),
@@ -483,7 +483,7 @@ class ControllerCore:
         return TickResult(tick, state, frames, estimate, events, finished)
 
     def _check_fall(self, m: Measurements | None) -> None:
-        """FAULTS.md F18: the trunk tilted beyond ``fall_tilt_rad`` for ``fall_ticks`` ticks in a row."""
+        """docs/FAULTS.md F18: the trunk tilted beyond ``fall_tilt_rad`` for ``fall_ticks`` ticks in a row."""
         tilt = max(abs(float(m.trunk_rpy_rad[0])), abs(float(m.trunk_rpy_rad[1]))) if m is not None else 0.0
         self._tilted_ticks = self._tilted_ticks + 1 if tilt > self.fall_tilt_rad else 0
         if self._tilted_ticks >= self.safety.fall_ticks:
@@ -567,7 +567,7 @@ class ControllerCore:
 
     def _command(self, state: GaitState, frames: list[tuple[str, tuple]], m: Measurements | None) -> None:
         """The four joint commands, through the envelope: the gait's targets in the walking
-        states, HOLD in every other (FAULTS.md I2)."""
+        states, HOLD in every other (docs/FAULTS.md I2)."""
         moving = self.fsm.moving and m is not None
         if not moving:
             self._targets = None

@@ -1,4 +1,4 @@
-"""The safety envelope: the last gate of every joint command before it is encoded (FAULTS.md I1).
+"""The safety envelope: the last gate of every joint command before it is encoded (docs/FAULTS.md I1).
 
 For each joint: the position setpoint inside [limit + margin], the setpoint's change per tick, the
 velocity feed-forward, the torque feed-forward and the torque limit within their bounds, and every

@@ -1,4 +1,4 @@
-"""The gait-phase state machine of the main controller (paper Fig. 2, FAULTS.md), pure.
+"""The gait-phase state machine of the main controller (paper Fig. 2, docs/FAULTS.md), pure.
 
 One call per 20 ms tick: :meth:`GaitFsm.step` takes what the tick knows (:class:`FsmInputs`) and
 returns the state for this tick. States are the protocol's :class:`~protocol.enums.GaitState`, so
@@ -13,7 +13,7 @@ the controller's heartbeat carries them unchanged.
     any --protective stop--> HOLD --reset, when healthy--> STAND
     any --fault--> FAULT (latched) --reset, healthy for `reset_healthy_ticks`, both sticks loaded--> STAND
 
-Rules that are invariants (FAULTS.md I2, I4, I6): no swing starts unless both sticks are loaded and
+Rules that are invariants (docs/FAULTS.md I2, I4, I6): no swing starts unless both sticks are loaded and
 every node is healthy with fresh data; FAULT is left only by an operator reset with its
 preconditions; every entry into HOLD or FAULT produces exactly one :class:`Transition` record with
 its cause; a fault overrides a protective stop, which overrides everything else. A stop asked

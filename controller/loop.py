@@ -75,7 +75,7 @@ class LockstepLoop:
 
     def _send(self, name: str, values: tuple) -> None:
         """Send one frame; a failed send is retried once within the tick (a full transmit queue
-        clears in microseconds), and a second failure is reported to the core (FAULTS.md F12, F13)."""
+        clears in microseconds), and a second failure is reported to the core (docs/FAULTS.md F12, F13)."""
         msg = self.tx.message(name, values)
         for _ in range(2):
             try:

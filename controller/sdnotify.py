@@ -1,7 +1,7 @@
 """systemd's notify protocol (sd_notify) without a library: READY, the watchdog ping, STOPPING.
 
 Under ``Type=notify`` with ``WatchdogSec=``, systemd passes ``NOTIFY_SOCKET`` and ``WATCHDOG_USEC``;
-the controller pings from inside its tick (FAULTS.md F21: a hung loop must stop the pings, which a
+the controller pings from inside its tick (docs/FAULTS.md F21: a hung loop must stop the pings, which a
 helper thread would not), at most every half watchdog period. Outside systemd every call is a
 no-op.
 """

@@ -1,5 +1,5 @@
 """Per-tick telemetry: one record per tick with a fixed schema, written as JSON lines by a thread
-that never blocks the tick (FAULTS.md F30).
+that never blocks the tick (docs/FAULTS.md F30).
 
 The tick hands its record to :meth:`TelemetryLog.put`, which only appends to a bounded queue; a
 writer thread drains it to the file. When the writer falls behind (slow disk, full disk) the

@@ -1,4 +1,4 @@
-"""Fault injection inside the emulated nodes (FAULTS.md layer NE), off unless configured.
+"""Fault injection inside the emulated nodes (docs/FAULTS.md layer NE), off unless configured.
 
 :class:`FaultInjector` holds the configured faults and a seeded generator. The host asks it, per
 tick, which node-level faults start (reboot, drive fault), whether a node is frozen or its encoder

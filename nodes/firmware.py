@@ -1,5 +1,5 @@
 """The firmware of one node board, without I/O: CANopen NMT, the drive state, the command watchdog,
-the controller-heartbeat consumer, and EMCY (../shared/FAULTS.md, rows F1, F9, F20-F24).
+the controller-heartbeat consumer, and EMCY (docs/FAULTS.md, rows F1, F9, F20-F24).
 
 The host feeds it decoded frames and its ticks and applies the :class:`DriveCommand` it returns to
 the joint; it reads the EMCY queue and the NMT state to build the node's frames. Nothing here

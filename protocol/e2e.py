@@ -135,7 +135,7 @@ class Receiver:
 
 def _sender_started(spec: MessageSpec, values: Any) -> bool:
     """Whether a frame (with counter 0) is the first of a sender that (re)started, and every
-    counter of its messages with it: a node's boot-up heartbeat (NMT state BOOT_UP, FAULTS.md F23)
+    counter of its messages with it: a node's boot-up heartbeat (NMT state BOOT_UP, docs/FAULTS.md F23)
     or the controller's first SYNC (tick 0; a restarted controller's first NMT command, counter 0
     again, was otherwise rejected as a repeat of the last one's, F22). ``values`` is an int when a
     signal is out of range (rejected after the counter check): no start then."""

@@ -1,4 +1,4 @@
-"""A fault-injecting wrapper around a python-can bus (FAULTS.md injection layer BW), seeded.
+"""A fault-injecting wrapper around a python-can bus (docs/FAULTS.md injection layer BW), seeded.
 
 :class:`FaultBus` wraps the bus of one process (in the safety tests and the soak, the
 controller's end of the in-process virtual bus) and applies :class:`BusFault` rules to the frames

@@ -1,7 +1,7 @@
 """The real-time set-up of a process with a 20 ms loop (the controller, the emulated node boards,
 the trace player).
 
-:func:`realtime_setup` applies the hygiene of ../shared/REALTIME.md where the OS permits it
+:func:`realtime_setup` applies the hygiene of docs/REALTIME.md where the OS permits it
 (``gc.freeze``, ``mlockall``, CPU pinning, SCHED_FIFO, ``/dev/cpu_dma_latency`` held at 0) and
 returns one warning per step it could not take, for the caller to log: a process without the
 privileges still runs, and says so.
@@ -48,7 +48,7 @@ def warm_up_linear_algebra() -> None:
 def realtime_setup(
     *, priority: int | None = 50, cpu: int | None = None, lock_memory: bool = True, dma_latency_path: str = "/dev/cpu_dma_latency"
 ) -> RealtimeReport:
-    """The start-up sequence of REALTIME.md, each step tried and reported (``priority`` None: the
+    """The start-up sequence of docs/REALTIME.md, each step tried and reported (``priority`` None: the
     process keeps the normal scheduler)."""
     report = RealtimeReport()
     warm_up_linear_algebra()

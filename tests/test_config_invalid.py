@@ -1,6 +1,6 @@
 """Invalid variants of the shipped configuration are refused before the bus opens (issue 9 item 5).
 
-FAULTS.md F27 and invariant I8: a configuration that fails validation makes the process exit non-zero
+docs/FAULTS.md F27 and invariant I8: a configuration that fails validation makes the process exit non-zero
 before it opens the bus (so before any node can be started or a drive enabled), with one line that
 names the file and the dotted key (or, for YAML syntax errors and tags, the line); safety parameters
 have no silent defaults; YAML tags are never executed.

@@ -1,4 +1,4 @@
-"""The safety envelope on every joint command (FAULTS.md I1, F16, F17, F28)."""
+"""The safety envelope on every joint command (docs/FAULTS.md I1, F16, F17, F28)."""
 
 from __future__ import annotations
 

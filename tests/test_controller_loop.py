@@ -64,7 +64,7 @@ def test_a_drive_fault_latches_fault_within_a_tick_and_a_reset_recovers(rig):
     assert any("EMCY 0x2310 from RIGHT_HIP" in e for e in loop.report.events)
     assert [loop.step().state for _ in range(10)] == [GaitState.FAULT] * 10
     # The operator's reset: the nodes get FAULT_RESET, but the FSM leaves FAULT only after 25
-    # healthy ticks (FAULTS.md I4), so the first press clears the nodes and a second one, later,
+    # healthy ticks (docs/FAULTS.md I4), so the first press clears the nodes and a second one, later,
     # the controller.
     loop.core.request_reset()
     states = [loop.step().state for _ in range(30)]

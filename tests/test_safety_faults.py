@@ -1,4 +1,4 @@
-"""The fault table of FAULTS.md, one case per row that applies (docs/SAFETY.md lists every row).
+"""The fault table of docs/FAULTS.md, one case per row that applies (docs/SAFETY.md lists every row).
 
 Each case walks the HHEA through the whole pipeline (controller, CAN frames on the in-process bus,
 node boards, simulation; tools/safety/rig.py) to a point of the gait (mid-swing or mid-stance),

@@ -1,4 +1,4 @@
-"""Fuzzing the controller's receive path (FAULTS.md F10, issue 9): 100,000 random frames go onto the
+"""Fuzzing the controller's receive path (docs/FAULTS.md F10, issue 9): 100,000 random frames go onto the
 bus while the controller walks the HHEA with its nodes, through the real loop (python-can bus,
 E2E receiver, node supervision, estimator, FSM, envelope), and the invariants I1-I7 hold on every
 tick (tools/safety/oracle.py); no exception escapes.

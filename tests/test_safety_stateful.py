@@ -1,4 +1,4 @@
-"""A Hypothesis state machine over the whole pipeline (FAULTS.md section 5): its rules advance ticks,
+"""A Hypothesis state machine over the whole pipeline (docs/FAULTS.md section 5): its rules advance ticks,
 inject and clear faults at the bus and in the node boards, reset, start and stop the gait, in any
 order; the invariants I1-I7 (tools/safety/oracle.py) are checked on every tick, and Hypothesis
 shrinks a failing sequence to a short one."""

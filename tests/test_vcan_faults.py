@@ -1,4 +1,4 @@
-"""Process-level faults over a real SocketCAN vcan0 (issue 9, item 4; ../shared/FAULTS.md F1, F20, F22, I4).
+"""Process-level faults over a real SocketCAN vcan0 (issue 9, item 4; docs/FAULTS.md F1, F20, F22, I4).
 
 ``aider-exo nodes`` and ``aider-exo controller`` run as separate processes in the sagittal mode
 while ``candump -L`` records every case; ticks are read from the capture (a SYNC carries the
@@ -22,7 +22,7 @@ missing statuses, HOLD or FAULT as designed) is started again once (``_mid_swing
     no exception, no fall, nothing of ours lost; both receivers count every foreign frame by reason;
   - cangen's fully random frames (random IDs, lengths and data), some of which carry our IDs at
     our lengths with a wrong CRC: no exception, no fall, and either the walk completes or the
-    controller latches FAULT for the frames' integrity (FAULTS.md F7/F8: 2 in 5 ticks, which
+    controller latches FAULT for the frames' integrity (docs/FAULTS.md F7/F8: 2 in 5 ticks, which
     those frames are) and holds. Nothing else is accepted.
 
 Run through the vcan sandbox (``make test`` does: ``tools/vcan-run -- pytest -m vcan``).
@@ -68,7 +68,7 @@ HEARTBEAT_PHASE = {m.frame_id: m.tick_phase for m in CATALOG.messages if m.famil
 HEARTBEAT_PERIOD = CODEC.spec("HEARTBEAT_LH").period_ticks
 SWINGS = (GaitState.SWING_LEFT, GaitState.SWING_RIGHT)
 COMMAND_TIMEOUT_TICKS = load_config(default_config_path()).nodes.command_timeout_ticks  # 3
-BOUND_TICKS = 4  # FAULTS.md F1 (detected and reacted to within 4 ticks) and issue 9's bound for F20
+BOUND_TICKS = 4  # docs/FAULTS.md F1 (detected and reacted to within 4 ticks) and issue 9's bound for F20
 
 
 # Both in real time unless ``--lockstep`` is among ``extra``.
@@ -713,7 +713,7 @@ def test_cangen_flood_of_foreign_frames_during_a_lockstep_walk_is_counted_and_ig
 def test_cangen_random_flood_colliding_with_our_ids_during_a_lockstep_walk(vcan0, tmp_path):
     """cangen's random IDs, lengths and data: some frames carry our IDs at our lengths with a wrong
     CRC (or, one in 256, a right one). No exception, no fall; the walk completes, or the
-    controller latches FAULT for the frames' integrity (FAULTS.md F7/F8: 2 in 5 ticks) and holds."""
+    controller latches FAULT for the frames' integrity (docs/FAULTS.md F7/F8: 2 in 5 ticks) and holds."""
     summary, final, msgs = _flooded_walk(vcan0, tmp_path / "candump.log", RANDOM)
     ours = summary["frames_sent"] + final["frames_sent"]
     rx = Receiver(CODEC)

@@ -30,7 +30,17 @@ SUBCOMMANDS = {
     "soak": "tools.cli.soak",
     "view": "tools.cli.view",
     "population": "tools.cli.population",
+    "config": "tools.cli.config",
 }
+
+
+def _version() -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version("aider-exo")
+    except metadata.PackageNotFoundError:  # run from a checkout that is not installed
+        return "unknown (not installed)"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -39,6 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Walking-assistance exoskeleton controller after Chen et al., ICMA 2017.",
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks instead of one-line errors")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for module in SUBCOMMANDS.values():
         importlib.import_module(module).add_parser(sub)

@@ -19,7 +19,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
             "estimation and the gait FSM, the DMP swing with the CoM-compensated step length, joint commands "
             "through the safety envelope, its heartbeat. It brings the nodes up and stands; it walks only when the "
             "operator asks for it (--walk, or --cycles N), so a controller restarted after a crash never walks on "
-            "its own (FAULTS.md F22). Lock-step: each tick waits for the nodes' frames of its SYNC; "
+            "its own (docs/FAULTS.md F22). Lock-step: each tick waits for the nodes' frames of its SYNC; "
             "real time (default): absolute 20 ms deadlines with the real-time set-up where the OS permits it. A "
             "one-line status per second on stderr; SIGINT or SIGTERM asks for a stop (the swing in progress "
             "ends first), then the run ends with cyclictest-style tick statistics."

@@ -15,7 +15,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description=(
             "The controller, the node boards and the simulated HHEA (sagittal mode) in lock-step on the in-process "
             "bus, in episodes of a fresh world, with seeded random bus and node faults; the operator resets after "
-            "each HOLD or FAULT and walks on. Checks FAULTS.md's invariants I1-I7 on every tick and the process's "
+            "each HOLD or FAULT and walks on. Checks docs/FAULTS.md's invariants I1-I7 on every tick and the process's "
             "resident memory and object count between the first episode and the end. Exit status 1 when an "
             "invariant broke or memory grew beyond its limit (docs/SAFETY.md)."
         ),

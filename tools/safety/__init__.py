@@ -1,1 +1,1 @@
-"""Safety verification: the invariants of FAULTS.md as an oracle, the fault rig and the soak."""
+"""Safety verification: the invariants of docs/FAULTS.md as an oracle, the fault rig and the soak."""

@@ -1,4 +1,4 @@
-"""FAULTS.md's global invariants I1-I7, checked on every tick from what is on the bus and what the
+"""docs/FAULTS.md's global invariants I1-I7, checked on every tick from what is on the bus and what the
 controller decided (I8, the configuration, is checked where the configuration is loaded).
 
 :class:`Oracle` gets, per tick, the controller's :class:`~controller.core.TickResult` and the

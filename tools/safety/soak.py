@@ -1,5 +1,5 @@
 """The soak: long lock-step walking under seeded random faults, with the invariants checked on every
-tick and the process's memory watched (issue 9; FAULTS.md section 5).
+tick and the process's memory watched (issue 9; docs/FAULTS.md section 5).
 
 Walking goes on in episodes (a fresh world each, as the experiments do), each on
 :class:`~tools.safety.rig.FaultRig`: the operator starts the walk; faults come at random, on
