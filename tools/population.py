@@ -66,8 +66,7 @@ def fitted_body(cfg: Config) -> dict[str, Any]:
 def _body_overrides(base: Config, *, mass_kg: float, height_m: float, stick_m: float, length_scale: float) -> dict[str, Any]:
     """The simulated patient of ``base`` at ``mass_kg`` and ``height_m``, its absolute widths and
     depths scaled with its lengths (``length_scale`` over the base patient's), sticks ``stick_m`` long."""
-    ref = base.sim.model.patient
-    scale = length_scale
+    ref, scale = base.sim.model.patient, length_scale
     return {
         "sim.model.patient.mass_kg": mass_kg,
         "sim.model.patient.height_m": height_m,

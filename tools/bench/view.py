@@ -47,6 +47,7 @@ import numpy as np
 from config import ConfigError, default_config_path, load_config, with_overrides
 from config.loader import AiderError
 from protocol.clock import MonotonicClock
+from tools.view.browser import cpu_s
 
 GOAL_LATENCY_P99_MS = 100.0
 GOAL_UPDATES_PER_S = 20.0
@@ -55,7 +56,6 @@ MODE = "sagittal"
 SEED = 0
 UDP_GROUP = "239.74.163.2"  # python-can's default IPv4 group, on a free port of its own
 AIDER = str(Path(sys.executable).with_name("aider-exo"))
-CLK_TCK = os.sysconf("SC_CLK_TCK")
 NICE = 10  # beside the walk, the view and the browser yield the CPU to it, as docs/VIEW.md advises
 
 
@@ -68,16 +68,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-ticks", type=int, help="end each walk after at most this many ticks (a short run)")
     parser.add_argument("--screenshot", metavar="PNG", type=Path,
                         help="save the page as the last walk beside the view ends")
-
-
-def cpu_s(stat_path: str) -> float:
-    """CPU time (user + system, s) of the process or thread whose ``/proc/.../stat`` is ``stat_path``."""
-    try:
-        stat = Path(stat_path).read_text()
-    except OSError:  # it has ended
-        return 0.0
-    fields = stat[stat.rindex(")") + 2:].split()  # after "pid (name) ": the state is field 0
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
 
 
 def browser_cpu_s() -> float:

@@ -17,7 +17,7 @@ from collections import deque
 from typing import Any
 
 from config import Config
-from tools.experiment.runner import ExperimentError, WalkJob, run_walk
+from tools.experiment.runner import ExperimentError, WalkJob, last_line, run_walk
 
 #: Ray's retries of a walk whose worker process died (a node lost, a process killed)
 TASK_RETRIES = 3
@@ -86,8 +86,7 @@ class RayExecutor:
             self._lock.notify_all()
         exc = done.exception()
         if exc is not None:
-            future.set_exception(ExperimentError(f"the walk {job.gait}, seed {job.seed}, failed on the cluster: "
-                                                 f"{str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__}"))
+            future.set_exception(ExperimentError(f"the walk {job.gait}, seed {job.seed}, failed on the cluster: {last_line(exc)}"))
         else:
             future.set_result(done.result())
 

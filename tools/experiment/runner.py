@@ -41,6 +41,12 @@ class ExperimentError(AiderError):
     """An experiment that cannot run or resume (a bad option, an unreadable result file, ...)."""
 
 
+def last_line(exc: BaseException) -> str:
+    """A walk's error in one line: its message's last line (a remote traceback's), or its type."""
+    text = str(exc).strip()
+    return text.splitlines()[-1] if text else type(exc).__name__
+
+
 @dataclass(frozen=True)
 class WalkJob:
     """One walk: ``fixed_m`` (every step that long, no compensation), ``theta`` = (alpha,

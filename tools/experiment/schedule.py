@@ -13,7 +13,7 @@ from collections.abc import Callable, Generator
 from dataclasses import dataclass
 from typing import Any
 
-from tools.experiment.runner import ExperimentError, WalkJob, WalkPool
+from tools.experiment.runner import ExperimentError, WalkJob, WalkPool, last_line
 
 Run = Generator[list[WalkJob], list[dict[str, Any]], Any]
 
@@ -56,8 +56,7 @@ def drive(pool: WalkPool, runs: dict[str, Run], stop: Callable[[], bool] | None 
         if not keep_going:
             raise exc
         run.close()
-        outcomes[name] = RunFailed(name, f"{job.gait}, seed {job.seed}", str(exc).strip().splitlines()[-1] if str(exc).strip()
-                                   else type(exc).__name__)
+        outcomes[name] = RunFailed(name, f"{job.gait}, seed {job.seed}", last_line(exc))
         return True
 
     for name, run in runs.items():

@@ -37,16 +37,29 @@ def missing() -> str | None:
     return None
 
 
+def stat_fields(path: str | Path) -> list[str] | None:
+    """The fields of a ``/proc/.../stat`` file after "pid (name) " (field 0 is the state), or None
+    when the process or thread has ended."""
+    try:
+        text = Path(path).read_text()
+    except OSError:
+        return None
+    return text[text.rindex(")") + 2:].split()
+
+
+def cpu_s(stat_path: str | Path) -> float:
+    """CPU time (user + system, s) of the process or thread whose ``/proc/.../stat`` is ``stat_path``."""
+    fields = stat_fields(stat_path)
+    return 0.0 if fields is None else (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _descendants(pid: int) -> list[int]:
     """The processes under ``pid`` (from ``/proc``: each one's parent)."""
     children: dict[int, list[int]] = {}
     for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            text = stat.read_text()
-        except OSError:
-            continue
-        ppid = int(text[text.rindex(")") + 2:].split()[1])
-        children.setdefault(ppid, []).append(int(stat.parent.name))
+        fields = stat_fields(stat)
+        if fields is not None:
+            children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
     found, todo = [], [pid]
     while todo:
         for child in children.get(todo.pop(), []):
