@@ -1,13 +1,28 @@
-"""The bus check on the in-process virtual bus: clean runs pass, damaged frames are caught."""
+"""The bus check on the in-process virtual bus: clean runs pass, damaged frames are caught; the
+listen-only check sends nothing; the HOLD check holds the emulated nodes; the sweep is refused on a
+real bus."""
 
 from __future__ import annotations
 
+import contextlib
+import threading
+import time
+
+import can
 import pytest
 
+import tools.buscheck
+import tools.busmonitor
 from config import default_config_path, load_config, with_overrides
+from nodes.host import NodesHost, running_in_thread
+from protocol.bus import open_bus
 from protocol.busload import busiest_tick
 from protocol.catalog import default_catalog
-from tools.buscheck import NodesSide, ThreadPeer, run_controller
+from protocol.clock import MonotonicClock
+from protocol.codec import Codec
+from protocol.enums import NmtState
+from tools.buscheck import NodesSide, ThreadPeer, run_controller, sweep_refusal
+from tools.busmonitor import hold_check, listen
 from tools.cli import main
 
 
@@ -81,24 +96,133 @@ def test_a_wrong_value_is_a_mismatch(monkeypatch):
 
 
 def test_no_peer_fails_with_one_line(capsys):
-    assert main(["buscheck", "--channel", "bc-alone", "--peer", "none", "--handshake-timeout", "0.2"]) == 1
+    assert main(["buscheck", "--mode", "sweep", "--channel", "bc-alone", "--peer", "none", "--handshake-timeout", "0.2"]) == 1
     err = capsys.readouterr().err
     assert "no boot-up from HEARTBEAT_LH, HEARTBEAT_LK, HEARTBEAT_RH, HEARTBEAT_RK" in err and err.count("\n") == 1
+    assert main(["buscheck", "--channel", "bc-alone", "--handshake-timeout", "0.2"]) == 1  # hold, the default
+    err = capsys.readouterr().err
+    assert "no heartbeat from LEFT_HIP, LEFT_KNEE, RIGHT_HIP, RIGHT_KNEE within 0.2 s" in err and err.count("\n") == 1
 
 
 def test_cli_refuses_impossible_combinations(capsys):
-    assert main(["buscheck", "--peer", "process"]) == 1
+    assert main(["buscheck", "--mode", "sweep", "--peer", "process"]) == 1
     assert "virtual bus lives inside one process" in capsys.readouterr().err
-    assert main(["buscheck", "--candump", "x.log"]) == 1
+    assert main(["buscheck", "--mode", "sweep", "--candump", "x.log"]) == 1
     assert "--candump records a SocketCAN interface" in capsys.readouterr().err
+    for mode in ("listen", "hold"):
+        assert main(["buscheck", "--mode", mode, "--peer", "thread"]) == 1
+        assert f"--peer belongs to --mode sweep (--mode {mode} checks real nodes)" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["buscheck", "--ticks", "0"])
 
 
-def test_a_bad_config_fails_before_the_bus_opens_naming_the_key(tmp_path, capsys):
-    bad = tmp_path / "bad.yaml"
-    bad.write_text("schema_version: 1\nbus:\n  interface: virtual\n  channel: x\n  bitrate_bit_s: 2000000\n"
-                   "protocol:\n  max_delta_counter: 2\n")
-    assert main(["buscheck", "--config", str(bad)]) == 1
-    err = capsys.readouterr().err
-    assert err == f"aider-exo: error: {bad}: bus.bitrate_bit_s: 2000000 is above the maximum 1000000\n"
+def _no_bus(*_args, **_kwargs):
+    raise AssertionError("the bus was opened")
+
+
+@pytest.mark.parametrize("channel", ["can0", "can1"])
+def test_the_sweep_is_refused_on_a_real_bus_without_the_flag_before_the_bus_opens(channel, monkeypatch, capsys):
+    monkeypatch.setattr(tools.buscheck, "open_bus", _no_bus)
+    monkeypatch.setattr(tools.busmonitor, "open_bus", _no_bus)
+    for argv in (["--mode", "sweep"], ["--mode", "sweep", "--peer", "none", "--ticks", "5"]):
+        assert main(["buscheck", "--bus", "socketcan", "--channel", channel, *argv]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f"aider-exo: error: refused: the sweep commands every joint in TRACK over its full range") \
+            and f"on socketcan:{channel} that moves the motors" in err and "--i-understand-motors-will-move" in err
+        assert err.count("\n") == 1
+    # With the flag it goes as far as opening the bus (here refused by the test itself).
+    with pytest.raises(AssertionError, match="the bus was opened"):
+        main(["buscheck", "--bus", "socketcan", "--channel", channel, "--mode", "sweep", "--peer", "none",
+              "--i-understand-motors-will-move"])
+
+
+def test_where_the_sweep_runs_without_the_flag():
+    assert sweep_refusal("virtual", "anything", False) is None
+    assert sweep_refusal("socketcan", "vcan0", False) is None
+    assert sweep_refusal("socketcan", "vcan12", False) is None
+    for interface, channel in (("socketcan", "can0"), ("socketcan", "slcan0"), ("socketcan", "vcan0x"), ("pcan", "PCAN_USBBUS1")):
+        assert sweep_refusal(interface, channel, False), (interface, channel)
+        assert sweep_refusal(interface, channel, True) is None
+
+
+def test_listen_only_sends_nothing_and_hears_every_frame():
+    """Beside a sweep on the same bus, a third bus counts every frame: exactly what the sweep's two
+    sides sent, and what the listener heard; the listener sent none."""
+    cfg = _cfg("bc-listen")
+    box: dict = {}
+    with open_bus(cfg.bus) as observer, open_bus(cfg.bus) as listener_bus:
+        heard = threading.Thread(target=lambda: box.update(listen=listen(
+            listener_bus, Codec(), MonotonicClock(), duration_s=2.0, max_delta_counter=2)))
+        heard.start()
+        sweep = _run(cfg, ticks=40, lockstep=False)
+        heard.join()
+        frames = 0
+        while observer.recv(timeout=0.2) is not None:
+            frames += 1
+    heard = box["listen"]
+    sent = sweep["controller"]["frames_sent"] + sweep["nodes"]["frames_sent"]
+    assert frames == sent
+    assert heard["frames_sent"] == 0
+    assert heard["frames_received"] == sent
+    assert heard["receiver"]["rejected"] == 0 and heard["receiver"]["lost"] == 0
+    assert heard["messages"]["SYNC"]["frames"] == 40
+    assert all(node["heartbeats"] for node in heard["nodes"].values())
+
+
+def test_the_listen_only_bus_refuses_to_send():
+    with open_bus(_cfg("bc-refuse").bus) as bus:
+        quiet = tools.busmonitor.ListenOnlyBus(bus)
+        with pytest.raises(tools.buscheck.BusCheckError, match="listen-only"):
+            quiet.send(can.Message(arbitration_id=0x80, data=b"\0" * 5, is_extended_id=False))
+        assert quiet.send_attempts == 1
+
+
+@contextlib.contextmanager
+def _held(name: str, faults: dict | None = None, ticks: int = 60):
+    """The HOLD check against the emulated nodes (lock-step, in a thread), which boot once the
+    check's bus is open, as boards powered after the checker starts: the result and the host."""
+    overrides: dict = {"bus.channel": name, "sim.mode": "sagittal"}
+    if faults:
+        overrides["nodes.faults"] = faults
+    cfg = with_overrides(load_config(default_config_path()), overrides)
+    with open_bus(cfg.bus) as check_bus, open_bus(cfg.bus) as node_bus:
+        host = NodesHost(cfg, node_bus, lockstep=True, seed=0)
+        try:
+            with running_in_thread(host):
+                yield hold_check(check_bus, cfg, MonotonicClock(), ticks=ticks, lockstep=True, tick_timeout_s=2.0,
+                                 handshake_timeout_s=10.0, fault_reset=False), host
+        finally:
+            host.close()
+
+
+def test_the_hold_check_holds_the_emulated_nodes_and_leaves_them_pre_operational():
+    ticks = 60
+    with _held("bc-hold", ticks=ticks) as (result, host):
+        deadline = time.monotonic() + 5  # the nodes' thread handles the last NMT command
+        while {port.firmware.state for port in host.ports.values()} != {NmtState.PRE_OPERATIONAL} and time.monotonic() < deadline:
+            time.sleep(0.01)
+        states = {port.firmware.state for port in host.ports.values()}
+    assert result["ok"], result["problems"]
+    catalog = default_catalog()
+    own = sum(1 for t in range(ticks) for m in catalog.cyclic_in_tick(t, "CONTROLLER") if m.family in ("SYNC", "JOINT_COMMAND", "CONTROLLER_HEARTBEAT"))
+    assert result["frames_sent"] == own + 2  # + NMT START and ENTER_PRE_OPERATIONAL
+    assert result["missing_frames"] == {}
+    for name, node in result["nodes"].items():
+        assert set(node["drive_states"]) == {"HOLD"}, name
+        assert node["last_nmt_state"] == "OPERATIONAL"
+    for family in ("JOINT_STATUS_LH", "JOINT_STATUS_LK", "JOINT_STATUS_RH", "JOINT_STATUS_RK"):
+        lo, hi = result["messages"][family]["signals"]["position_rad"]
+        assert hi - lo < 0.05, (family, lo, hi)  # held where it stood (within 3 degrees: the hold is a stiff spring under the load)
+    assert states == {NmtState.PRE_OPERATIONAL}
+
+
+def test_the_hold_check_reports_a_drive_fault():
+    with _held("bc-hold-fault", {"f": {"kind": "drive_fault", "node": "RIGHT_KNEE", "start_tick": 20}}, ticks=40) as (result, _):
+        pass
+    assert not result["ok"]
+    knee = result["nodes"]["RIGHT_KNEE"]
+    assert knee["drive_states"]["FAULT"] >= 15 and knee["error_codes"]["OVER_CURRENT"] >= 15
+    assert knee["emcy_total"] == 1
+    assert any(p.startswith("RIGHT_KNEE: ") and "FAULT" in p for p in result["problems"])
+    assert any("drive not in HOLD" in p for p in result["problems"])
+    assert set(result["nodes"]["LEFT_HIP"]["drive_states"]) == {"HOLD"}

@@ -10,8 +10,10 @@ import json
 import math
 import os
 import re
+import signal
 import subprocess
 import sys
+import time
 
 import can
 import pytest
@@ -41,7 +43,8 @@ def _parse_cantools_line(line: str) -> tuple[int, str, dict[str, str]]:
 def test_two_processes_exchange_a_full_protocol_over_vcan0_recorded_by_candump(vcan0, tmp_path):
     log = tmp_path / "candump.log"
     cmd = [
-        sys.executable, "-m", "tools.cli", "buscheck", "--bus", "socketcan", "--channel", vcan0, "--ticks", str(TICKS), "--lockstep", "--candump", str(log), "--json",
+        sys.executable, "-m", "tools.cli", "buscheck", "--mode", "sweep", "--bus", "socketcan", "--channel", vcan0, "--ticks", str(TICKS), "--lockstep",
+        "--candump", str(log), "--json",
     ]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr + proc.stdout
@@ -90,6 +93,63 @@ def test_two_processes_exchange_a_full_protocol_over_vcan0_recorded_by_candump(v
                 assert math.isclose(float(text), value, rel_tol=0, abs_tol=1e-9), (name, key, text, value)
             compared += 1
     assert compared > 1000
+
+
+def _aider(vcan0: str, *argv: str) -> list[str]:
+    return [sys.executable, "-m", "tools.cli", argv[0], "--bus", "socketcan", "--channel", vcan0, *argv[1:]]
+
+
+def test_listen_only_sends_nothing_beside_a_sweep_recorded_by_candump(vcan0, tmp_path):
+    """buscheck --mode listen, its own process, hears a sweep between two other processes: it
+    decodes every frame candump recorded, and candump recorded exactly what the sweep sent."""
+    listener = subprocess.Popen(_aider(vcan0, "buscheck", "--mode", "listen", "--duration", "25", "--json"),
+                                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(4)  # the listener's start-up (imports, socket) in the sandbox
+        sweep = subprocess.run(_aider(vcan0, "buscheck", "--mode", "sweep", "--ticks", str(TICKS), "--lockstep",
+                                      "--candump", str(tmp_path / "candump.log"), "--json"),
+                               cwd=ROOT, capture_output=True, text=True, timeout=600)
+        out, err = listener.communicate(timeout=120)
+    finally:
+        listener.kill()
+    assert sweep.returncode == 0, sweep.stderr
+    swept = json.loads(sweep.stdout)
+    assert listener.returncode in (0, 1), err  # 1: the sweep's values include faults, as every value does
+    heard = json.loads(out)
+    sent = swept["controller"]["frames_sent"] + swept["nodes"]["frames_sent"]
+    assert swept["candump"]["frames"] == sent  # nobody else sent: the listener sent nothing
+    assert heard["frames_sent"] == 0
+    assert heard["frames_received"] == sent
+    assert heard["receiver"]["rejected"] == 0 and heard["receiver"]["lost"] == 0
+    assert heard["messages"]["SYNC"]["frames"] == TICKS
+
+
+def test_the_hold_check_holds_the_emulated_nodes_over_vcan0(vcan0):
+    """buscheck --mode hold against `aider-exo nodes` (the node firmware and the simulated HHEA) as
+    two processes: every node answers every SYNC, every drive holds, the joints stay put."""
+    ticks = 100
+    check = subprocess.Popen(_aider(vcan0, "buscheck", "--mode", "hold", "--lockstep", "--ticks", str(ticks), "--json"),
+                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    nodes = None
+    try:
+        time.sleep(4)  # the check listens first: the boards' boot-ups are what it waits for
+        nodes = subprocess.Popen(_aider(vcan0, "nodes", "--lockstep", "--mode", "sagittal", "--quiet"),
+                                 cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        out, err = check.communicate(timeout=300)
+    finally:
+        check.kill()
+        if nodes is not None:
+            nodes.send_signal(signal.SIGINT)
+            nodes.communicate(timeout=60)
+    result = json.loads(out)
+    assert result["ok"], (result["problems"], err)
+    assert result["missing_frames"] == {}
+    for name, node in result["nodes"].items():
+        assert set(node["drive_states"]) == {"HOLD"}, name
+    for name, seen in result["messages"].items():
+        if name.startswith("JOINT_STATUS_"):
+            lo, hi = seen["signals"]["position_rad"]
+            assert hi - lo < 0.05, (name, lo, hi)
 
 
 def test_our_sockets_take_a_receive_buffer_of_about_1100_frames(vcan0):

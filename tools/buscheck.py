@@ -1,7 +1,9 @@
-"""Bus check: the full protocol of every tick exchanged between a controller and the four nodes.
+"""Bus check, the full-range sweep: the whole protocol of every tick between a controller and the four nodes.
 
-A bring-up and conformance tool for a CAN bus (a real ``can0`` on the bench, ``vcan0`` in the
-tests, or the in-process virtual bus). The *controller* side sends what the main controller
+A conformance tool for the protocol's implementations (``vcan0`` in the tests, the in-process
+virtual bus, or a bench of bare motor boards with nothing attached: it moves the motors, so
+:func:`sweep_refusal` refuses it on any other bus unless the operator confirms). The safe checks
+of a real bus, listen-only and HOLD-only, are in :mod:`tools.busmonitor`. The *controller* side sends what the main controller
 sends (SYNC, four joint commands, its heartbeat, NMT commands); the *nodes* side answers every
 SYNC with every frame the four node boards send in that tick, after a CANopen-style boot-up
 handshake. Every signal carries a value that both sides compute from the tick number
@@ -16,6 +18,7 @@ the round trip from SYNC to the last node frame of the tick (p50, p99, max). Wit
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import signal
 import subprocess
@@ -39,10 +42,24 @@ from protocol.enums import GaitState, NmtCommand, NmtState
 from protocol.synthetic import sweep_record
 
 CONTROLLER = "CONTROLLER"
+SWEEP_FLAG = "--i-understand-motors-will-move"
 
 
 class BusCheckError(AiderError):
-    """The check could not run (peer missing, handshake timeout, recorder failed)."""
+    """The check could not run (peer missing, handshake timeout, recorder failed, refused)."""
+
+
+def sweep_refusal(interface: str, channel: str, confirmed: bool) -> str | None:
+    """Why the full-range sweep must not run on this bus, or None. It runs on the in-process
+    virtual bus and on vcan* without more; on anything else (can0, a USB adapter) only when the
+    operator has said that the motors may move."""
+    if confirmed or interface == "virtual" or (interface == "socketcan" and re.fullmatch(r"vcan\d+", channel)):
+        return None
+    return (
+        f"refused: the sweep commands every joint in TRACK over its full range (setpoints over +-pi, full torque); "
+        f"on {interface}:{channel} that moves the motors. Check a real bus with --mode listen or --mode hold, or, "
+        f"with no one in the exoskeleton and every joint free to turn, pass {SWEEP_FLAG}"
+    )
 
 
 def expected_record(spec: MessageSpec, tick: int) -> Any:
