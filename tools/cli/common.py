@@ -17,6 +17,22 @@ def add_config_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--channel", help="override bus.channel (vcan0, can0, a virtual bus name, or a multicast group[:port])")
 
 
+def add_mode_option(parser: argparse.ArgumentParser, what: str = "the simulation's mode") -> None:
+    """``--mode``: one spelling and one default (the config's ``sim.mode``) for every command that simulates."""
+    parser.add_argument("--mode", choices=("sagittal", "full3d"),
+                        help=f"{what} (default: sim.mode of the config, sagittal in config/default.yaml: the 3-D model "
+                             "does not walk yet, docs/SIM.md)")
+
+
+def sim_mode(args: argparse.Namespace, cfg: Config) -> str:
+    """``--mode``, or the config's ``sim.mode``."""
+    if args.mode:
+        return args.mode
+    if cfg.sim is None:
+        raise ConfigError(f"missing section (aider-exo {args.command} simulates)", key="sim")
+    return cfg.sim.mode
+
+
 def load_cli_config(args: argparse.Namespace, *, needs: tuple[str, ...] = ()) -> Config:
     """The configuration named by ``--config`` with ``--bus``/``--channel`` applied (validated);
     an optional section the command ``needs`` that the file lacks is an error naming file and key,

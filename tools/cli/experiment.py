@@ -8,7 +8,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from tools.cli.common import StopSignals, add_config_options, load_cli_config, positive_int, print_json
+from tools.cli.common import StopSignals, add_config_options, add_mode_option, load_cli_config, positive_int, print_json, sim_mode
 
 DEFAULT_OUT = Path("build/experiment")
 
@@ -38,7 +38,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         help="local: a pool of worker processes here (default); ray: every walk a Ray task (docs/CLUSTER.md)")
         sp.add_argument("--address", metavar="ADDR",
                         help="--executor ray: the cluster to join (host:port, or auto); default: start a local Ray instance")
-        sp.add_argument("--mode", choices=("sagittal", "full3d"), default="sagittal", help="simulation mode (default sagittal)")
+        add_mode_option(sp)
         sp.add_argument("--fresh", action="store_true", help="discard the stored walks of OUT/cache first")
         sp.add_argument("--json", action="store_true", help="print summary.json on stdout")
         sp.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -121,6 +121,7 @@ def _plan(args: argparse.Namespace, **kw):
         cfg = with_overrides(cfg, dict(parse_override(s) for s in args.set))
     if cfg.controller is None or cfg.sim is None:
         raise ExperimentError("the experiments need the controller and sim sections of the configuration")
+    args.mode = sim_mode(args, cfg)
     if args.workers < 0:
         raise ExperimentError(f"--workers must be >= 0, got {args.workers}")
     if args.fresh and (args.out / "cache").exists():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from tools.cli.common import StopSignals, add_config_options, load_cli_config, print_json
+from tools.cli.common import StopSignals, add_config_options, add_mode_option, load_cli_config, print_json
 
 
 
@@ -25,7 +25,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lockstep", action="store_true", help="advance the physics one tick per SYNC (default: real time)")
     p.add_argument("--gui", action="store_true", help="open the PyBullet window")
     p.add_argument("--seed", type=int, default=0, help="seed of sensor noise, the patient and fault injection (default 0)")
-    p.add_argument("--mode", choices=("full3d", "sagittal"), help="model mode (default: sim.mode of the config)")
+    add_mode_option(p)
     p.add_argument("--truth", metavar="FILE", help="write the simulation's ground truth after every SYNC as JSON lines "
                    "(tick, X_CoM/X_SP, fall): for tests and experiments, never sent on the bus")
     p.add_argument("--json", action="store_true", help="print the final state as JSON on stdout at exit")

@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from config import ConfigError, default_config_path, load_config
-from tools.cli.common import positive_int, print_json
+from tools.cli.common import add_mode_option, positive_int, print_json
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -24,7 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
     def common(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("--config", help="YAML configuration (default: the packaged one)")
-        sp.add_argument("--mode", choices=("full3d", "sagittal"), help="model mode (default: sim.mode of the config)")
+        add_mode_option(sp)
         sp.add_argument("--json", action="store_true", help="machine-readable output")
 
     sw = sim_sub.add_parser("sweep", help="fixed step lengths x seeds: cycles walked, falls, effort")

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any, Callable
 
-from tools.cli.common import StopSignals, add_config_options, load_cli_config, positive_float, positive_int, print_json
+from tools.cli.common import StopSignals, add_config_options, add_mode_option, load_cli_config, positive_float, positive_int, print_json, sim_mode
 
 FORMATS_HELP = "traces: .log (candump -l/-L), .asc, .blf, .trc, .csv (python-can), .mf4 (with asammdf); - reads candump -L from stdin"
 
@@ -22,7 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_config_options(r)
     r.add_argument("--walk", type=positive_int, metavar="CYCLES",
                    help="record the lock-step pipeline (controller, nodes, simulation) walking CYCLES gait cycles in this process")
-    r.add_argument("--mode", choices=("sagittal", "full3d"), default="sagittal", help="--walk: the simulation's mode (default sagittal)")
+    add_mode_option(r, "--walk: the simulation's mode")
     r.add_argument("--max-time", type=positive_float, metavar="S", help="--walk: simulated seconds at most")
     r.add_argument("--seed", type=int, help="seed of the run (--walk: of the simulation, default 0); kept in the sidecar")
     r.add_argument("--count", type=positive_int, help="stop after this many frames")
@@ -152,6 +152,8 @@ def run_record(args: argparse.Namespace) -> int:
 
     cfg = load_cli_config(args)
     check_writable(args.output, overwrite=args.overwrite)
+    if args.walk is not None:
+        args.mode = sim_mode(args, cfg)
     if args.walk is None and cfg.bus.interface == "virtual":
         raise TraceError("a virtual bus lives inside one process: record a socketcan bus (--bus socketcan "
                          "--channel vcan0), or the in-process pipeline with --walk CYCLES")

@@ -12,7 +12,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from tools.cli.common import StopSignals, add_config_options, load_cli_config, positive_float, positive_int, print_json
+from tools.cli.common import StopSignals, add_config_options, add_mode_option, load_cli_config, positive_float, positive_int, print_json, sim_mode
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -33,8 +33,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=positive_int, default=10, metavar="N",
                    help="gait cycles to walk (the paper's steps: a left and a right swing each; default 10)")
     p.add_argument("--seed", type=int, default=0, help="seed of the patient's stick placement and sensor noise (default 0)")
-    p.add_argument("--mode", choices=("sagittal", "full3d"), default="sagittal",
-                   help="simulation mode (default sagittal: the 3-D model does not walk yet, docs/SIM.md)")
+    add_mode_option(p)
     p.add_argument("--fixed-step", type=positive_float, metavar="M", help="every step this long: no compensation (the baseline)")
     p.add_argument("--learn", action="store_true", help="learn the compensation online with PI² (saved to --patient's file)")
     p.add_argument("--patient", metavar="NAME", help="walk with (and, learning, update) this patient's learned parameters")
@@ -106,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_cli_config(args)
     if cfg.controller is None or cfg.sim is None or cfg.nodes is None:
         raise ConfigError("walking in simulation needs the controller, sim and nodes sections", key="controller")
+    args.mode = sim_mode(args, cfg)
     two_processes = cfg.bus.interface != "virtual"
     if args.virtual_patient:
         if two_processes:
