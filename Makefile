@@ -10,7 +10,7 @@ AIDER  := $(VENV)/bin/aider-exo
 STAMP  := $(VENV)/.installed
 SYSTEM_TOOLS := linux insmod candump canplayer cangen chromium
 
-.PHONY: demo test venv system-deps docs clean
+.PHONY: demo test venv system-deps docs perf clean
 
 venv: $(STAMP)
 
@@ -53,6 +53,12 @@ docs: venv system-deps
 	mkdir -p build
 	$(AIDER) trace record build/view-walk.log --walk 2 --seed 0 --overwrite
 	$(AIDER) view --trace build/view-walk.log --speed 4 --port 0 --screenshot docs/view.png
+
+# Every benchmark, each its own process, into docs/perf/NAME.json, and docs/PERFORMANCE.md's table
+# made from them (a test fails when the two disagree). Run it on an otherwise idle machine.
+perf: venv system-deps
+	$(AIDER) bench all --out docs/perf
+	$(AIDER) bench table docs/perf --update docs/PERFORMANCE.md
 
 clean:
 	rm -rf $(VENV) build .pytest_cache .hypothesis

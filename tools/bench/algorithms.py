@@ -113,3 +113,13 @@ def format_text(r: dict[str, Any]) -> str:
         f"PI² update (K = 5, N = 10): {res['pi2_update_us']['median']:.1f} ({res['pi2_update_us']['best']:.1f})   goal {goals['pi2_update']:.0f}",
     ]
     return "\n".join(lines) + "\n"
+
+
+def table_rows(r: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The summary table's rows (docs/PERFORMANCE.md): figure, measured, goal or baseline."""
+    res, g = r["results"], r["goals_us"]
+    return [(
+        "DMP tick, leg IK, PI² update",
+        f"{res['dmp_tick_us']['median']:.1f}, {res['ik_us']['median']:.2f}, {res['pi2_update_us']['median']:.1f} us",
+        f"at most {g['dmp_tick']:.0f}, {g['ik']:.0f}, {g['pi2_update']:.0f} us (plain RK4 DMP tick {res['dmp_tick_naive_rk4_us']['median']:.0f} us)",
+    )]

@@ -198,3 +198,18 @@ def format_text(r: dict[str, Any]) -> str:
         + ", ".join(f"{int(rate) // 1000} kbit/s {pct:.2f} %" for rate, pct in r["bus_load_busiest_tick_percent_worst"].items()),
     ]
     return "\n".join(lines) + "\n"
+
+
+def table_rows(r: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The summary table's rows (docs/PERFORMANCE.md): figure, measured, goal or baseline."""
+    res, s, g = r["results"], r["speedup"], r["goals"]
+    load = r["bus_load_busiest_tick_percent_worst"]
+    return [
+        (f"encode + decode of the busiest tick ({r['frames_per_tick']} frames): ours, ours with counters, cantools, cantools with CRC",
+         ", ".join(f"{res[k]['total_us_per_tick']['median']:.1f}" for k in ("ours", "ours_e2e", "cantools", "cantools_crc")) + " us",
+         f"at most {g['us_per_tick_max']:.0f} us"),
+        ("ours against cantools; against cantools with CRC", f"{s['ours_vs_cantools']:.1f}x; {s['ours_vs_cantools_crc']:.1f}x",
+         f"at least {g['speedup_vs_cantools_min']:.0f}x"),
+        ("bus load of the busiest tick (worst-case stuffing), 500 kbit/s / 1 Mbit/s",
+         f"{load['500000']:.1f} % / {load['1000000']:.1f} %", f"at most {g['bus_load_500k_percent_max']:.0f} % at 500 kbit/s"),
+    ]

@@ -272,3 +272,20 @@ def format_text(r: dict[str, Any]) -> str:
     ]
     lines += [f"{name:<46}{value:>22}  {note}".rstrip() for name, value, note in rows]
     return "\n".join(lines) + "\n"
+
+
+def table_rows(r: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The summary table's rows (docs/PERFORMANCE.md): figure, measured, goal or baseline."""
+    ls, rt, g = r["lockstep"], r["realtime"], r["goals"]
+    w, lat, plain = ls["controller_work_us"], rt["wakeup_lateness"], r["plain_sleep_loop"]["wakeup_lateness"]
+    return [
+        ("controller work per tick (lock-step walk), p50 / p99 / max", f"{_us(w['p50'])} / {_us(w['p99'])} / {_us(w['max'])}",
+         f"p50 at most {_us(g['controller_work_p50_us_max'])}, p99 at most {_us(g['controller_work_p99_us_max'])}"),
+        ("lock-step pipeline / bare physics; / bare simulation",
+         f"{ls['pipeline_to_bare_physics']:.2f}; {ls['pipeline_to_bare_sim']:.2f} ({ls['pipeline_ticks_per_s']:.0f} ticks/s)",
+         f"at least {g['pipeline_to_bare_physics_min']} of bare physics ({ls['bare_physics_ticks_per_s']:.0f} ticks/s)"),
+        ("real-time wake-up lateness, p99 / max", f"{_us(lat['p99_us'])} / {_us(lat['max_us'])}",
+         f"plain sleep loop {_us(plain['p99_us'])} / {_us(plain['max_us'])}"),
+        ("real-time controller work, p99 / max", f"{_us(rt['controller_work']['p99_us'])} / {_us(rt['controller_work']['max_us'])}",
+         f"overruns {rt['overruns']}"),
+    ]

@@ -120,3 +120,16 @@ def format_text(r: dict[str, Any]) -> str:
         lines.append(f"{row['patients']:>10}{row['walks']:>10}{row['core_hours']:>12}"
                      + "".join(f"{row['hours_on'][str(c)]:>16}" for c in CLUSTER_CORES))
     return "\n".join(lines) + "\n"
+
+
+def table_rows(r: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The summary table's rows (docs/PERFORMANCE.md): figure, measured, goal or baseline."""
+    lo, ray, over = r["local"], r["ray"], r["ray_overhead_percent"]
+    return [
+        (f"{r['walks']} walks of {r['cycles']} cycles on {r['workers']} workers, local pool / Ray, after Ray's start-up",
+         f"{lo['seconds_after_startup']:.2f} / {ray['seconds_after_startup']:.2f} s ({over['after_startup']:+.1f} %)",
+         f"Ray at most {r['goals']['ray_overhead_percent_max']:.0f} % over the local pool"),
+        ("the same, with Ray's start-up", f"{lo['seconds_with_startup']:.2f} / {ray['seconds_with_startup']:.2f} s "
+         f"({over['with_startup']:+.1f} %)", ""),
+        ("one walk of 10 cycles", f"{r['sizing']['walk_core_seconds']:.2f} core-s", f"{r['sizing']['walks_per_core_hour']} walks per core-hour"),
+    ]

@@ -115,3 +115,12 @@ def format_text(r: dict[str, Any]) -> str:
         )
     lines.append(f"goal: the nodes and the codec add at most {r['goals']['overhead_percent_max']:.0f} % to the simulation")
     return "\n".join(lines) + "\n"
+
+
+def table_rows(r: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The summary table's rows (docs/PERFORMANCE.md): figure, measured, goal or baseline."""
+    return [
+        (f"{m['mode']}: the four boards and the codec over the simulation", f"{m['overhead_percent']:.1f} % "
+         f"({m['us_per_tick_nodes_and_codec']:.0f} us a tick)", f"at most {r['goals']['overhead_percent_max']:.0f} %")
+        for m in r["modes"]
+    ]

@@ -192,3 +192,13 @@ def format_text(r: dict[str, Any]) -> str:
     lines.append(f"  {'share':>7}  {'own s':>7}  {'calls':>8}  function")
     lines += [f"  {f['share'] * 100:5.1f} %  {f['own_s']:7.3f}  {f['calls']:>8}  {f['function']}" for f in r["functions"]]
     return "\n".join(lines) + "\n"
+
+
+def table_rows(r: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The summary table's rows (docs/PERFORMANCE.md): figure, measured, goal or baseline."""
+    physics = next(p for p in r["parts"] if p["part"].startswith("physics"))
+    return [
+        ("pipeline per walking tick, unprofiled (with the timers)", f"{r['timed']['pipeline_us_per_walking_tick']:.0f} us",
+         f"{r['timed']['ticks']} ticks"),
+        ("PyBullet's step, share of the profiled walk's own time", f"{physics['share'] * 100:.1f} %", "the rest is Python"),
+    ]

@@ -96,3 +96,14 @@ def format_text(r: dict[str, Any]) -> str:
     lines.append(f"goals: at least {g['realtime_factor_min']:.0f}x real time; sensors, patient and interface at most "
                  f"{g['overhead_percent_max']:.0f} % on top of the bare physics")
     return "\n".join(lines) + "\n"
+
+
+def table_rows(r: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The summary table's rows (docs/PERFORMANCE.md): figure, measured, goal or baseline."""
+    g = r["goals"]
+    return [
+        (f"{m['mode']}: full simulation, x real time; bare physics; overhead", f"{m['realtime_factor_full']:.1f}x; "
+         f"{m['realtime_factor_bare_physics']:.1f}x; {m['overhead_percent']:.0f} %",
+         f"at least {g['realtime_factor_min']:.0f}x; overhead at most {g['overhead_percent_max']:.0f} %")
+        for m in r["modes"]
+    ]

@@ -289,3 +289,19 @@ def format_text(r: dict[str, Any]) -> str:
     lines.append(f"after a {s['stall_ms']:.0f} ms stall, most frames sent within 1 ms (the trace itself: {s['trace_max_frames_in_1ms']}): "
                  + ", ".join(f"{name} {s[name]['max_frames_in_1ms_after_stall']}" for name in PLAYERS))
     return "\n".join(lines) + "\n"
+
+
+def table_rows(r: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The summary table's rows (docs/PERFORMANCE.md): figure, measured, goal or baseline."""
+    f, rp, g = r["decode"]["frames_per_s"], r["replay"], r["goals"]
+
+    def p99(condition: str) -> str:
+        return " / ".join(f"{rp[condition][name]['median_of_rounds']['p99']:.0f}" for name in PLAYERS) + " us"
+
+    rows = [("decode from a file, ours / cantools", f"{f['ours_file']['median']:,} / {f['cantools_file']['median']:,} frames/s",
+             f"at least {g['decode_frames_per_s_min']:,} frames/s")]
+    for condition, title in (("normal_priority", ""), ("realtime", ", with the real-time set-up")):
+        if condition in rp:
+            rows.append((f"replay timing error (absolute) p99, ours / python-can MessageSync{title}", p99(condition),
+                         f"at most {g['replay_p99_us_max']:.0f} us"))
+    return rows

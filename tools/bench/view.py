@@ -337,3 +337,14 @@ def format_text(r: dict[str, Any]) -> str:
     if shot:
         lines.append(f"screenshot: {shot}")
     return "\n".join(lines) + "\n"
+
+
+def table_rows(r: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The summary table's rows (docs/PERFORMANCE.md): figure, measured, goal or baseline."""
+    rows = []
+    for key, where in (("beside_the_walk", "beside a real-time walk"), ("in_the_walks_process", "in the walk's process")):
+        latency, updates, listener, _without, with_view, *_ = _rows(r[key], r["goals"])
+        rows += [(f"{where}: {latency[0]}", latency[1], latency[2]), (f"{where}: {updates[0]}", updates[1], updates[2]),
+                 (f"{where}: {listener[0]}", listener[1], listener[2]),
+                 (f"{where}: controller work p99 with the view", with_view[1], with_view[2])]
+    return rows
