@@ -241,6 +241,7 @@ class HoldCheck:
         self.hold_torque_nm = hold_torque_nm
         self.sent = 0
         self.timer: TickTimer | None = None
+        self.settled_ns = 0  # heartbeats from then on must say OPERATIONAL
         self.due: Counter[str] = Counter()  # node frames due (answers to our SYNCs)
         self.not_operational: Counter[str] = Counter()  # heartbeats after START in another state
 
@@ -268,6 +269,10 @@ class HoldCheck:
         if fault_reset:
             self._nmt(NmtCommand.FAULT_RESET)
         self._nmt(NmtCommand.START)
+        # In real time a heartbeat a node sent just before START reached it may still say
+        # PRE_OPERATIONAL (in lock-step the nodes take START before the first SYNC).
+        period_ms = max(m.cycle_ms or 0 for m in self.catalog.messages if m.family == "HEARTBEAT")
+        self.settled_ns = self.clock.now_ns() + (2 * period_ms * 1_000_000 if self.period_ns else 0)
         timer = TickTimer(self.clock, self.period_ns) if self.period_ns else None
         self.timer = timer
         hold = {m.name: m.record(mode=int(JointMode.HOLD), position_setpoint_rad=0.0, velocity_ff_rad_s=0.0,
@@ -301,7 +306,8 @@ class HoldCheck:
                 continue
             spec = decoded.message
             expected[spec.name] -= 1
-            if spec.family == "HEARTBEAT" and decoded.values.nmt_state != NmtState.OPERATIONAL:
+            if (spec.family == "HEARTBEAT" and decoded.values.nmt_state != NmtState.OPERATIONAL
+                    and self.clock.now_ns() >= self.settled_ns):
                 self.not_operational[spec.sender] += 1
 
     @property
