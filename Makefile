@@ -29,7 +29,7 @@ system-deps:
 		echo "installing user-mode-linux kmod can-utils chromium (missing:$$missing)"; \
 		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq user-mode-linux kmod can-utils chromium >/dev/null; \
 	else \
-		echo "warning: missing$$missing; install user-mode-linux kmod can-utils chromium (as root) or the vcan and browser tests will be skipped"; \
+		echo "warning: missing$$missing; install user-mode-linux kmod can-utils chromium (as root) or the vcan and browser tests cannot run: docs/TESTING.md"; \
 	fi
 
 # The main job: the main controller walks the simulated HHEA through the four emulated node boards,

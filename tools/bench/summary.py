@@ -24,6 +24,7 @@ from config.loader import AiderError
 ROOT = Path(__file__).resolve().parents[2]
 BEGIN = "<!-- bench-table: made by `make perf` from docs/perf/*.json; do not edit by hand -->"
 END = "<!-- /bench-table -->"
+CODE = ("*.py", "*.dbc", "*.yaml", "*.json", "*.c", "pyproject.toml")  # what a benchmark's figures depend on (not docs)
 
 
 class BenchError(AiderError):
@@ -37,10 +38,10 @@ def machine() -> dict[str, Any]:
     try:
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
                                 check=True).stdout.strip()
-        changed = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT, capture_output=True,
-                                 text=True, check=True).stdout.strip()
+        changed = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", *CODE], cwd=ROOT,
+                                 capture_output=True, text=True, check=True).stdout.strip()
         if changed:
-            commit += " with uncommitted changes"
+            commit += " with uncommitted changes to the code"
     except (OSError, subprocess.CalledProcessError):
         commit = "unknown"
     return {"cpu": model, "cores": os.cpu_count(), "kernel": platform.release(), "python": platform.python_version(),
