@@ -308,7 +308,7 @@ def _rows(s: dict[str, Any], g: dict[str, Any]) -> list[tuple[str, str, str]]:
 
     spread = c["p99_without_view_spread_us"]
     return [
-        ("frame-to-page latency, p50 / p99 / max", f"{lat['p50']} / {lat['p99']} / {lat['max']} ms",
+        ("frame-to-page latency, p50 / p99 / max", f"{lat['p50']:.1f} / {lat['p99']:.1f} / {lat['max']:.1f} ms",
          f"p99 at most {g['latency_p99_ms_max']:.0f} ms ({lat['samples']} updates)"),
         ("page updates per second", f"{s['updates_per_s']}", f"at least {g['updates_per_s_min']:.0f}"),
         ("listener CPU, % of one core", f"{s['listener_cpu_percent']}",
