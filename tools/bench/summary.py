@@ -15,11 +15,11 @@ import os
 import platform
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any, Callable
 
 from config.loader import AiderError
+from protocol.clock import MonotonicClock
 
 ROOT = Path(__file__).resolve().parents[2]
 BEGIN = "<!-- bench-table: made by `make perf` from docs/perf/*.json; do not edit by hand -->"
@@ -52,12 +52,13 @@ def run_all(out: Path, names: list[str], progress: Callable[[str], None]) -> dic
     """Run each benchmark of ``names`` into ``out/NAME.json``; the seconds each took."""
     out.mkdir(parents=True, exist_ok=True)
     seconds: dict[str, float] = {}
+    clock = MonotonicClock()
     for i, name in enumerate(names, 1):
         progress(f"bench all: {i} of {len(names)}: {name}")
-        start = time.monotonic()
+        start = clock.now_ns()
         proc = subprocess.run([sys.executable, "-m", "tools.cli", "bench", name, "--json"], cwd=ROOT,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        seconds[name] = round(time.monotonic() - start, 1)
+        seconds[name] = round((clock.now_ns() - start) / 1e9, 1)
         if proc.returncode != 0:
             last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
             raise BenchError(f"bench {name} failed ({proc.returncode}): {last}")
