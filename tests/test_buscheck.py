@@ -20,9 +20,9 @@ from protocol.busload import busiest_tick
 from protocol.catalog import default_catalog
 from protocol.clock import MonotonicClock
 from protocol.codec import Codec
-from protocol.enums import NmtState
+from protocol.enums import DriveState, NmtState
 from tools.buscheck import NodesSide, ThreadPeer, run_controller, sweep_refusal
-from tools.busmonitor import hold_check, listen
+from tools.busmonitor import HoldCheck, hold_check, listen
 from tools.cli import main
 
 
@@ -178,9 +178,9 @@ def test_the_listen_only_bus_refuses_to_send():
 
 
 @contextlib.contextmanager
-def _held(name: str, faults: dict | None = None, ticks: int = 60):
-    """The HOLD check against the emulated nodes (lock-step, in a thread), which boot once the
-    check's bus is open, as boards powered after the checker starts: the result and the host."""
+def _rig(name: str, faults: dict | None = None):
+    """The emulated nodes (lock-step, in a thread) and a bus for the check, opened first: the nodes
+    boot once it listens, as boards powered after the checker starts."""
     overrides: dict = {"bus.channel": name, "sim.mode": "sagittal"}
     if faults:
         overrides["nodes.faults"] = faults
@@ -189,19 +189,35 @@ def _held(name: str, faults: dict | None = None, ticks: int = 60):
         host = NodesHost(cfg, node_bus, lockstep=True, seed=0)
         try:
             with running_in_thread(host):
-                yield hold_check(check_bus, cfg, MonotonicClock(), ticks=ticks, lockstep=True, tick_timeout_s=2.0,
-                                 handshake_timeout_s=10.0, fault_reset=False), host
+                yield cfg, check_bus, host
         finally:
             host.close()
+
+
+@contextlib.contextmanager
+def _held(name: str, faults: dict | None = None, ticks: int = 60):
+    """The HOLD check against the emulated nodes: the result and the host."""
+    with _rig(name, faults) as (cfg, check_bus, host):
+        yield _hold(cfg, check_bus, ticks), host
+
+
+def _hold(cfg, bus, ticks):
+    return hold_check(bus, cfg, MonotonicClock(), ticks=ticks, lockstep=True, tick_timeout_s=2.0,
+                      handshake_timeout_s=10.0, fault_reset=False)
+
+
+def _nmt_states(host, want, timeout_s=5.0):
+    """The nodes' NMT states once they are ``want`` (the nodes' thread handles the last command)."""
+    deadline = time.monotonic() + timeout_s
+    while {port.firmware.state for port in host.ports.values()} != want and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return {port.firmware.state for port in host.ports.values()}
 
 
 def test_the_hold_check_holds_the_emulated_nodes_and_leaves_them_pre_operational():
     ticks = 60
     with _held("bc-hold", ticks=ticks) as (result, host):
-        deadline = time.monotonic() + 5  # the nodes' thread handles the last NMT command
-        while {port.firmware.state for port in host.ports.values()} != {NmtState.PRE_OPERATIONAL} and time.monotonic() < deadline:
-            time.sleep(0.01)
-        states = {port.firmware.state for port in host.ports.values()}
+        states = _nmt_states(host, {NmtState.PRE_OPERATIONAL})
     assert result["ok"], result["problems"]
     catalog = default_catalog()
     own = sum(1 for t in range(ticks) for m in catalog.cyclic_in_tick(t, "CONTROLLER") if m.family in ("SYNC", "JOINT_COMMAND", "CONTROLLER_HEARTBEAT"))
@@ -226,3 +242,23 @@ def test_the_hold_check_reports_a_drive_fault():
     assert any(p.startswith("RIGHT_KNEE: ") and "FAULT" in p for p in result["problems"])
     assert any("drive not in HOLD" in p for p in result["problems"])
     assert set(result["nodes"]["LEFT_HIP"]["drive_states"]) == {"HOLD"}
+
+
+def test_an_interrupted_hold_check_leaves_the_nodes_pre_operational_and_holding(monkeypatch):
+    collected = []
+    original = HoldCheck._collect
+
+    def interrupted(self, expected, deadline_ns):
+        collected.append(1)
+        if len(collected) == 20:
+            raise KeyboardInterrupt  # the operator's Ctrl-C in the middle of the check
+        original(self, expected, deadline_ns)
+
+    monkeypatch.setattr(HoldCheck, "_collect", interrupted)
+    with _rig("bc-hold-interrupted") as (cfg, check_bus, host):
+        with pytest.raises(KeyboardInterrupt):
+            _hold(cfg, check_bus, 60)
+        states = _nmt_states(host, {NmtState.PRE_OPERATIONAL})
+        drives = {port.firmware.drive_state for port in host.ports.values()}
+    assert states == {NmtState.PRE_OPERATIONAL}
+    assert drives == {DriveState.HOLD}  # no watchdog fault: the nodes were told the check ended

@@ -60,7 +60,6 @@ class MessageSeen:
 
     spec: MessageSpec
     frames: int = 0
-    first_s: float | None = None
     last_s: float | None = None
     max_interval_s: float = 0.0
     gaps: int = 0
@@ -73,8 +72,6 @@ class MessageSeen:
             self.max_interval_s = max(self.max_interval_s, interval)
             if interval > GAP_FACTOR * self.spec.cycle_ms / 1000:
                 self.gaps += 1
-        if self.first_s is None:
-            self.first_s = t
         self.last_s = t
         for name, value in zip(values._fields, values):
             if isinstance(value, (int, float)) and math.isfinite(value):
@@ -273,26 +270,27 @@ class HoldCheck:
         # PRE_OPERATIONAL (in lock-step the nodes take START before the first SYNC).
         period_ms = max(m.cycle_ms or 0 for m in self.catalog.messages if m.family == "HEARTBEAT")
         self.settled_ns = self.clock.now_ns() + (2 * period_ms * 1_000_000 if self.period_ns else 0)
-        timer = TickTimer(self.clock, self.period_ns) if self.period_ns else None
-        self.timer = timer
+        self.timer = timer = TickTimer(self.clock, self.period_ns) if self.period_ns else None
         hold = {m.name: m.record(mode=int(JointMode.HOLD), position_setpoint_rad=0.0, velocity_ff_rad_s=0.0,
                                  torque_ff_Nm=0.0, torque_limit_Nm=float(round(self.hold_torque_nm)))
                 for m in self.catalog.messages if m.family == "JOINT_COMMAND"}
-        for n in range(ticks):
-            tick = timer.wait() if timer else n
-            expected = Counter(m.name for m in self.catalog.cyclic_in_tick(tick) if m.sender != CONTROLLER and m.family != "HEARTBEAT")
-            self.due.update(expected)
-            for spec in self.catalog.cyclic_in_tick(tick, CONTROLLER):
-                if spec.name == "SYNC":
-                    self._send(spec, spec.record(tick=tick))
-                elif spec.family == "JOINT_COMMAND":
-                    self._send(spec, hold[spec.name])
-                elif spec.family == "CONTROLLER_HEARTBEAT":
-                    self._send(spec, spec.record(gait_state=int(GaitState.HOLD)))
-                # the controller's telemetry frames carry nothing a node acts on: not sent
-            self._collect(expected, self.clock.now_ns() + int(self.tick_timeout_s * 1e9) if timer is None else timer.deadline_ns(tick + 1))
-        self._collect(Counter(), self.clock.now_ns() + 2 * TICK_MS * 1_000_000)  # the last tick's answers
-        self._nmt(NmtCommand.ENTER_PRE_OPERATIONAL)  # the drives hold; no command watchdog to trip
+        try:
+            for n in range(ticks):
+                tick = timer.wait() if timer else n
+                expected = Counter(m.name for m in self.catalog.cyclic_in_tick(tick) if m.sender != CONTROLLER and m.family != "HEARTBEAT")
+                self.due.update(expected)
+                for spec in self.catalog.cyclic_in_tick(tick, CONTROLLER):
+                    if spec.name == "SYNC":
+                        self._send(spec, spec.record(tick=tick))
+                    elif spec.family == "JOINT_COMMAND":
+                        self._send(spec, hold[spec.name])
+                    elif spec.family == "CONTROLLER_HEARTBEAT":
+                        self._send(spec, spec.record(gait_state=int(GaitState.HOLD)))
+                    # the controller's telemetry frames carry nothing a node acts on: not sent
+                self._collect(expected, self.clock.now_ns() + int(self.tick_timeout_s * 1e9) if timer is None else timer.deadline_ns(tick + 1))
+            self._collect(Counter(), self.clock.now_ns() + 2 * TICK_MS * 1_000_000)  # the last tick's answers
+        finally:  # also after an error or Ctrl-C: the drives go on holding, and no command watchdog trips
+            self._nmt(NmtCommand.ENTER_PRE_OPERATIONAL)
         return self.report(ticks)
 
     def _collect(self, expected: Counter[str], deadline_ns: int) -> None:
