@@ -157,6 +157,10 @@ class UdpBus(can.BusABC):
         from can.interfaces.udp_multicast import UdpMulticastBus
 
         self.inner = UdpMulticastBus(channel=group, port=port, fd=False)
+        # The receive buffer of SocketCAN's sockets here too: a lock-step walk sends far faster than
+        # real time, and a listener not run for a moment lost datagrams (a counter gap) to the default.
+        with socket.fromfd(self.inner.fileno(), socket.AF_INET, socket.SOCK_DGRAM) as sock:  # a duplicate descriptor
+            _set_receive_buffer(sock)
         super().__init__(channel=f"{group}:{port}")
         self.channel_info = f"UDP multicast {group} port {port}"
         self.receive_own_messages = receive_own_messages
@@ -276,11 +280,14 @@ RECEIVE_BUFFER_BYTES = 1 << 20
 
 
 def _enlarge_receive_buffer(bus: can.BusABC) -> None:
-    """Past ``net.core.rmem_max`` where the process may (``SO_RCVBUFFORCE``, CAP_NET_ADMIN), else
-    up to it (the kernel caps ``SO_RCVBUF`` silently)."""
     sock = getattr(bus, "socket", None)
-    if sock is None:
-        return
+    if sock is not None:
+        _set_receive_buffer(sock)
+
+
+def _set_receive_buffer(sock: socket.socket) -> None:
+    """:data:`RECEIVE_BUFFER_BYTES`, past ``net.core.rmem_max`` where the process may
+    (``SO_RCVBUFFORCE``, CAP_NET_ADMIN), else up to it (the kernel caps ``SO_RCVBUF`` silently)."""
     try:
         sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, RECEIVE_BUFFER_BYTES)
     except OSError:

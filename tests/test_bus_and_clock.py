@@ -101,6 +101,30 @@ def test_udp_multicast_carries_frames_between_buses_without_their_own_echo(udp_m
         assert heard == [0x80, 0x80, 0x81, 0x82]
 
 
+def test_a_udp_multicast_listener_not_run_for_a_moment_keeps_a_burst(udp_multicast):
+    """The receive buffer of our SocketCAN sockets (about 1100 frames) on the UDP bus too: a
+    lock-step walk's burst waits for a listener that was not run, instead of being dropped."""
+    import os
+    import socket
+
+    from protocol.bus import RECEIVE_BUFFER_BYTES
+
+    with _udp(udp_multicast) as sender, _udp(udp_multicast) as listener:
+        with socket.fromfd(listener.inner.fileno(), socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            granted = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        expected = RECEIVE_BUFFER_BYTES if os.geteuid() == 0 else min(RECEIVE_BUFFER_BYTES, int(open("/proc/sys/net/core/rmem_max").read()))
+        assert granted >= 2 * expected, granted  # the kernel reports twice what it grants
+        if expected < RECEIVE_BUFFER_BYTES:
+            return  # capped by net.core.rmem_max for this user: the burst below would overflow it
+        burst = 600  # the kernel's default buffer holds about 230
+        for i in range(burst):
+            sender.send(_frame(0x100 + i % 0x100, i.to_bytes(2, "little")))
+        got = 0
+        while listener.recv(timeout=0.5) is not None:
+            got += 1
+        assert got == burst
+
+
 def test_udp_multicast_poll_reads_past_echoes_and_counts_garbage(udp_multicast):
     """A poll (timeout 0) skips echoes and foreign datagrams to the frame behind them: the
     controller's drain takes an empty poll for an empty bus (a poll that returned nothing at an
