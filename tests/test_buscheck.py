@@ -24,6 +24,7 @@ from protocol.enums import DriveState, NmtState
 from tools.buscheck import NodesSide, ThreadPeer, run_controller, sweep_refusal
 from tools.busmonitor import HoldCheck, hold_check, listen
 from tools.cli import main
+from tools.cli.buscheck import format_safe
 
 
 def _cfg(name: str):
@@ -230,6 +231,9 @@ def test_the_hold_check_holds_the_emulated_nodes_and_leaves_them_pre_operational
         lo, hi = result["messages"][family]["signals"]["position_rad"]
         assert hi - lo < 0.05, (family, lo, hi)  # held where it stood (within 3 degrees: the hold is a stiff spring under the load)
     assert states == {NmtState.PRE_OPERATIONAL}
+    text = format_safe(result)
+    assert f"HOLD for {ticks} ticks (lockstep): sent {result['frames_sent']} frames" in text
+    assert text.count(" rad, drive {'HOLD': 60}") == 4 and text.endswith("result: OK\n")
 
 
 def test_the_hold_check_reports_a_drive_fault():

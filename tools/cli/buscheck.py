@@ -136,9 +136,12 @@ def format_safe(r: dict) -> str:
     ]
     for name, n in r["nodes"].items():
         supply = n["supply_voltage_V"]
+        joint = next((m["signals"]["position_rad"] for key, m in r["messages"].items()
+                      if key.startswith("JOINT_STATUS_") and m["sender"] == name), None)
         lines.append(
             f"  {name:<10} heartbeats {n['heartbeats']:>4} last {n['last_nmt_state'] or '-'}"
             + (f", supply {supply[0]:.1f}-{supply[1]:.1f} V" if supply else "")
+            + (f", joint {joint[0]:+.3f} to {joint[1]:+.3f} rad" if joint else "")
             + (f", drive {n['drive_states']}" if n["drive_states"] else "")
             + (f", EMCY {n['emcy_total']}" if n["emcy_total"] else "")
         )
