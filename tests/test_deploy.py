@@ -25,6 +25,9 @@ def _unit(path):
 
 def _aider_argv(command: str) -> list[str] | None:
     words = shlex.split(command)
+    for stop in (">", ">>", "<", "|", "&&"):  # the shell's part of the line
+        if stop in words:
+            words = words[:words.index(stop)]
     for i, word in enumerate(words):
         if word.endswith("aider-exo"):
             return words[i + 1:]

@@ -105,10 +105,25 @@ def patient_config(base: Config, patient: VirtualPatient, *, source: str = "<pat
     cfg = _apply(base, {**body, **arms, **behaviour}, source)
     fit = patient.fit
     measured_scale = scale * (1 + fit.length_error_fraction)
-    measured = _apply(cfg, _body_overrides(base, mass_kg=patient.mass_kg + fit.mass_error_kg,
-                                           height_m=ref.height_m * measured_scale, stick_m=stick_m * (1 + fit.length_error_fraction),
-                                           length_scale=measured_scale), source)
-    return _apply(cfg, fitted_body(measured), source)
+    measured = _estimated(base, mass_kg=patient.mass_kg + fit.mass_error_kg, height_m=ref.height_m * measured_scale,
+                          stick_m=stick_m * (1 + fit.length_error_fraction), length_scale=measured_scale, source=source)
+    return _apply(cfg, measured, source)
+
+
+def estimated_body(base: Config, *, mass_kg: float, height_m: float, stick_m: float, source: str = "<body>") -> dict[str, Any]:
+    """``controller.legs`` and ``controller.body`` (as overrides) of a person of ``mass_kg`` and
+    ``height_m`` with sticks ``stick_m`` long: the simulated patient of ``base`` built to those
+    measures (Winter's tables, widths and depths scaled with the height), then :func:`fitted_body`.
+    What a clinic starts from before it measures (``aider-exo config body``)."""
+    if base.sim is None:
+        raise ConfigError("the body is estimated with the simulation's anthropometric model", key="sim", source=source)
+    return _estimated(base, mass_kg=mass_kg, height_m=height_m, stick_m=stick_m,
+                      length_scale=height_m / base.sim.model.patient.height_m, source=source)
+
+
+def _estimated(base: Config, *, mass_kg: float, height_m: float, stick_m: float, length_scale: float, source: str) -> dict[str, Any]:
+    body = _body_overrides(base, mass_kg=mass_kg, height_m=height_m, stick_m=stick_m, length_scale=length_scale)
+    return fitted_body(_apply(base, body, source))
 
 
 def _apply(cfg: Config, overrides: dict[str, Any], source: str) -> Config:
@@ -214,5 +229,5 @@ def patient_yaml(patient: VirtualPatient) -> str:
     return yaml.safe_dump(data, sort_keys=False)
 
 
-__all__ = ["PATIENTS_DIR", "draw_patient", "draw_population", "fitted_body", "load_patient", "patient_config",
+__all__ = ["PATIENTS_DIR", "draw_patient", "draw_population", "estimated_body", "fitted_body", "load_patient", "patient_config",
            "patient_yaml", "shipped_patients"]

@@ -1,11 +1,12 @@
-"""``aider-exo config``: check a configuration file before it reaches a bus."""
+"""``aider-exo config``: check a configuration file before it reaches a bus; estimate a patient's
+body model from mass and height."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from tools.cli.common import print_json
+from tools.cli.common import positive_float, print_json
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -18,6 +19,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     c.add_argument("file", type=Path, metavar="FILE", help="YAML configuration (config/default.yaml is the packaged one)")
     c.add_argument("--json", action="store_true", help="print the result as JSON")
     c.set_defaults(func=run_check)
+    b = csub.add_parser("body", help="controller.legs and controller.body estimated for a patient's mass and height (YAML)",
+                        description="Prints the controller's body model (controller.legs, controller.body) for a patient of "
+                                    "--mass and --height with sticks of --stick-length, estimated the way the simulated "
+                                    "patient is built (Winter's anthropometric tables, segment by segment), as YAML to put in "
+                                    "the patient's configuration. Replace every value you have measured, above all the "
+                                    "exoskeleton's thigh and shank as adjusted (docs/DEPLOY.md, section 5).")
+    b.add_argument("--mass", type=positive_float, required=True, metavar="KG", help="the patient's body mass")
+    b.add_argument("--height", type=positive_float, required=True, metavar="M", help="the patient's body height")
+    b.add_argument("--stick-length", type=positive_float, metavar="M",
+                   help="the sticks (crutches), grip to tip (default: the packaged model's, scaled with the height)")
+    b.add_argument("--config", metavar="FILE", help="take the anthropometric model from FILE's sim section "
+                                                    "(default: the packaged configuration)")
+    b.add_argument("--json", action="store_true", help="print the values as JSON instead of YAML")
+    b.set_defaults(func=run_body)
 
 
 def run_check(args: argparse.Namespace) -> int:
@@ -32,4 +47,47 @@ def run_check(args: argparse.Namespace) -> int:
     else:
         present = ", ".join(name for name, there in sections.items() if there) or "none"
         print(f"{args.file}: valid (schema {SCHEMA_VERSION}, bus {result['bus']}; sections: {present}; hash {result['hash'][:12]})")
+    return 0
+
+
+#: the patient's options, for errors in their terms (the keys as tools.population names them)
+_BODY_OPTIONS = {"mass_kg": "--mass", "height_m": "--height", "stick_length_m": "--stick-length"}
+
+
+def run_body(args: argparse.Namespace) -> int:
+    import yaml
+
+    from config import ConfigError, default_config_path, load_config
+    from tools.population import estimated_body
+
+    base = load_config(args.config or default_config_path())
+    if base.sim is None:
+        raise ConfigError("has no sim section: the body is estimated with the simulation's anthropometric model "
+                          "(leave out --config to use the packaged one)", key="sim", source=args.config)
+    stick_m = args.stick_length or base.sim.model.sticks.length_m * args.height / base.sim.model.patient.height_m
+    try:
+        overrides = estimated_body(base, mass_kg=args.mass, height_m=args.height, stick_m=stick_m, source="aider-exo config body")
+    except ConfigError as exc:
+        option = _BODY_OPTIONS.get(exc.key or "")
+        if option is None:
+            raise
+        raise ConfigError(f"{option}: {exc.message}") from None
+    nested: dict = {}
+    for key, value in overrides.items():
+        *path, leaf = key.split(".")
+        node = nested
+        for part in path:
+            node = node.setdefault(part, {})
+        node[leaf] = [round(float(v), 4) for v in value] if isinstance(value, list) else round(float(value), 4)
+    if args.json:
+        print_json({"mass_kg": args.mass, "height_m": args.height, "stick_length_m": round(stick_m, 4), **nested})
+        return 0
+    print(f"# controller.legs and controller.body for a patient of {args.mass:g} kg and {args.height:g} m with sticks of\n"
+          f"# {stick_m:.3f} m, estimated by `aider-exo config body` (Winter's tables). Replace every value you have\n"
+          "# measured, above all the exoskeleton's thigh and shank as adjusted; then `aider-exo config check FILE`.")
+    class Dumper(yaml.SafeDumper):  # blocks for the sections, [x, y, z] for the vectors
+        pass
+
+    Dumper.add_representer(list, lambda dumper, v: dumper.represent_sequence("tag:yaml.org,2002:seq", v, flow_style=True))
+    print(yaml.dump(nested, Dumper=Dumper, sort_keys=False, default_flow_style=False), end="")
     return 0
