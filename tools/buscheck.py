@@ -49,11 +49,15 @@ class BusCheckError(AiderError):
     """The check could not run (peer missing, handshake timeout, recorder failed, refused)."""
 
 
+def is_vcan(interface: str, channel: str) -> bool:
+    return interface == "socketcan" and re.fullmatch(r"vcan\d+", channel) is not None
+
+
 def sweep_refusal(interface: str, channel: str, confirmed: bool) -> str | None:
     """Why the full-range sweep must not run on this bus, or None. It runs on the in-process
     virtual bus and on vcan* without more; on anything else (can0, a USB adapter) only when the
     operator has said that the motors may move."""
-    if confirmed or interface == "virtual" or (interface == "socketcan" and re.fullmatch(r"vcan\d+", channel)):
+    if confirmed or interface == "virtual" or is_vcan(interface, channel):
         return None
     return (
         f"refused: the sweep commands every joint in TRACK over its full range (setpoints over +-pi, full torque); "

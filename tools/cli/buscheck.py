@@ -11,7 +11,8 @@ import argparse
 from pathlib import Path
 
 from protocol.clock import MonotonicClock
-from tools.buscheck import SWEEP_FLAG, BusCheckError, ProcessPeer, ThreadPeer, run_controller, run_nodes, sweep_refusal
+from tools.buscheck import (SWEEP_FLAG, BusCheckError, ProcessPeer, ThreadPeer, is_vcan, run_controller, run_nodes,
+                            sweep_refusal)
 from tools.busmonitor import run_hold, run_listen
 from tools.cli.common import add_config_options, load_cli_config, positive_float, positive_int, print_json
 
@@ -108,8 +109,7 @@ def _sweep(args: argparse.Namespace) -> int:
     refusal = sweep_refusal(cfg.bus.interface, cfg.bus.channel, args.motors_may_move)
     if refusal:
         raise BusCheckError(refusal)
-    on_vcan = cfg.bus.interface == "socketcan" and cfg.bus.channel.startswith("vcan")
-    peer_kind = args.peer or ("thread" if cfg.bus.interface == "virtual" else "process" if on_vcan else "none")
+    peer_kind = args.peer or ("thread" if cfg.bus.interface == "virtual" else "process" if is_vcan(cfg.bus.interface, cfg.bus.channel) else "none")
     if peer_kind == "process" and cfg.bus.interface == "virtual":
         raise BusCheckError("a virtual bus lives inside one process: use --peer thread, or a socketcan bus")
     if args.candump and cfg.bus.interface != "socketcan":
