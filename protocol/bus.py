@@ -138,6 +138,17 @@ def _frame_key(msg: can.Message) -> tuple[int, bool, bool, bytes]:
     return msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, bytes(msg.data)
 
 
+#: python-can's default IPv4 multicast group; a run of its own takes a free port on it
+UDP_GROUP = "239.74.163.2"
+
+
+def free_udp_channel() -> str:
+    """A ``udp_multicast`` channel (``group:port``) on a port no socket of this host holds now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("", 0))
+        return f"{UDP_GROUP}:{s.getsockname()[1]}"
+
+
 class UdpBus(can.BusABC):
     """python-can's UDP multicast bus (classic frames) with SocketCAN's semantics for our own
     frames and for garbage.

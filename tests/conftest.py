@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import socket
 from pathlib import Path
 
 import can.interfaces.virtual as virtual
@@ -43,15 +42,6 @@ def vcan0() -> str:
     return "vcan0"
 
 
-UDP_GROUP = "239.74.163.2"  # python-can's default IPv4 group; each test its own port
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("", 0))
-        return s.getsockname()[1]
-
-
 def udp_group(channel: str) -> tuple[str, int]:
     """The (group, port) of a udp_multicast channel, parsed as the configuration parses it."""
     from config.schema import BusConfig
@@ -80,7 +70,9 @@ def udp_multicast_problem(channel: str) -> str | None:
 def udp_multicast() -> str:
     """A UDP multicast channel (group:port, a free port of its own) that works on this machine;
     skips loudly (fails under CI=true) without multicast."""
-    channel = f"{UDP_GROUP}:{_free_udp_port()}"
+    from protocol.bus import free_udp_channel
+
+    channel = free_udp_channel()  # each test a port of its own
     problem = udp_multicast_problem(channel)
     if problem:
         message = f"UDP MULTICAST TESTS NOT RUN: {problem}"

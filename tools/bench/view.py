@@ -33,7 +33,6 @@ import json
 import os
 import platform
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -46,6 +45,7 @@ import numpy as np
 
 from config import ConfigError, default_config_path, load_config, with_overrides
 from config.loader import AiderError
+from protocol.bus import free_udp_channel
 from protocol.clock import MonotonicClock
 from tools.view.browser import cpu_s
 
@@ -54,7 +54,6 @@ GOAL_UPDATES_PER_S = 20.0
 GOAL_LISTENER_CPU_PERCENT = 10.0
 MODE = "sagittal"
 SEED = 0
-UDP_GROUP = "239.74.163.2"  # python-can's default IPv4 group, on a free port of its own
 AIDER = str(Path(sys.executable).with_name("aider-exo"))
 NICE = 10  # beside the walk, the view and the browser yield the CPU to it, as docs/VIEW.md advises
 
@@ -138,12 +137,6 @@ def _watch(url: str, run_walk: Callable[[], None], cpu: Callable[[], float], scr
 # -- beside the walk: the view as its own process ----------------------------------------------------
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("", 0))
-        return s.getsockname()[1]
-
-
 def _realtime_walk(cfg: Any, args: argparse.Namespace, channel: str) -> dict[str, Any]:
     """A deployment's walk: ``aider-exo nodes`` and ``aider-exo controller --cycles N`` (its real-time
     set-up: SCHED_FIFO where allowed), both in real time on ``channel``; the controller's summary."""
@@ -186,7 +179,7 @@ def _view_process(args: argparse.Namespace, channel: str) -> Iterator[tuple[subp
 
 
 def _beside(cfg: Any, args: argparse.Namespace, say: Callable[[str], None]) -> dict[str, Any]:
-    channel = f"{UDP_GROUP}:{_free_udp_port()}"
+    channel = free_udp_channel()
 
     def with_view(last: bool) -> tuple[dict[str, Any], dict[str, Any]]:
         walked: dict[str, Any] = {}
