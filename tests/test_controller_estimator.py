@@ -107,34 +107,3 @@ def test_a_stick_that_cannot_reach_the_floor_keeps_the_last_elbow_angle_and_says
     second = estimator.update(lifted)
     assert second.tips_on_floor == (False, True) and second.elbow_rad[0] == first.elbow_rad[0]
     assert all(np.isfinite(second.com)) and not math.isnan(second.x_ratio)
-
-
-def test_the_controllers_body_model_is_the_simulated_patient():
-    """controller.body restates the simulated patient (the controller must not import sim): a
-    change to one without the other fails here, not as a drifting estimate."""
-    from sim.model import build_body
-
-    body, legs = CFG.controller.body, CFG.controller.legs
-    sim = build_body(CFG.sim.model)
-    model = CFG.sim.model
-    pairs = {
-        "thigh": (legs.thigh_m, sim.thigh_m), "shank": (legs.shank_m, sim.shank_m),
-        "ankle height": (legs.ankle_height_m, sim.ankle_height_m), "upper arm": (body.upper_arm_m, sim.upper_arm_m),
-        "elbow to tip": (body.elbow_to_tip_m, sim.forearm_m + sim.grip_m + sim.stick_m),
-        "hip half width": (body.hip_half_width_m, sim.hip_half_width_m),
-        "shoulder y": (body.shoulder_xyz_m[1], sim.shoulder_half_width_m), "shoulder z": (body.shoulder_xyz_m[2], sim.shoulder_above_hip_m),
-        "tip radius": (body.tip_radius_m, model.sticks.tip_radius_m),
-        "heel": (body.foot_heel_m, model.foot.heel_back_m), "toe": (body.foot_toe_m, model.foot.toe_front_m),
-        "foot half width": (body.foot_half_width_m, model.foot.half_width_m),
-        "trunk kg": (body.trunk_kg, sim.link("trunk").mass_kg), "thigh kg": (body.thigh_kg, sim.link("thigh_l").mass_kg),
-        "shank kg": (body.shank_kg, sim.link("shank_l").mass_kg), "foot kg": (body.foot_kg, sim.link("foot_l").mass_kg),
-        "upper arm kg": (body.upper_arm_kg, sim.link("upper_arm_l").mass_kg + sim.link("shoulder_l").mass_kg),
-        "forearm kg": (body.forearm_kg, sim.link("forearm_l").mass_kg),
-        "trunk com x": (body.trunk_com_xz_m[0], sim.link("trunk").com_xyz[0]),
-        "trunk com z": (body.trunk_com_xz_m[1], sim.link("trunk").com_xyz[2]),
-        "thigh com": (body.thigh_com_m, -sim.link("thigh_l").com_xyz[2]),
-        "shank com": (body.shank_com_m, -sim.link("shank_l").com_xyz[2]),
-        "forearm com": (body.forearm_com_m, -sim.link("forearm_l").com_xyz[2]),
-    }
-    off = {k: v for k, v in pairs.items() if not v[0] == pytest.approx(v[1], abs=1e-3, rel=1e-3)}
-    assert not off, f"controller.body differs from the simulated patient: {off}"

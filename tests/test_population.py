@@ -37,6 +37,8 @@ def _assert_body_fits(cfg, model_cfg, tol=1e-3):
 
 
 def test_the_default_controller_body_is_fitted_to_the_default_patient():
+    """controller.body restates the simulated patient (the controller must not import sim): a
+    change to one without the other fails here, not as a drifting estimate."""
     _assert_body_fits(BASE, BASE)
 
 
