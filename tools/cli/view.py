@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         reader.stop()
         if reader.is_alive():
-            reader.join(timeout=15.0)  # a bus reader reads what came before the stop (at most 10 s)
+            reader.join(timeout=getattr(reader, "DRAIN_S", 0.0) + 2.0)  # a bus reader drains what came before the stop
         if bus is not None:
             bus.shutdown()
     snap = feed.snapshot()
