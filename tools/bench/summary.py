@@ -24,7 +24,7 @@ from protocol.clock import MonotonicClock
 ROOT = Path(__file__).resolve().parents[2]
 BEGIN = "<!-- bench-table: made by `make perf` from docs/perf/*.json; do not edit by hand -->"
 END = "<!-- /bench-table -->"
-CODE = ("*.py", "*.dbc", "*.yaml", "*.json", "*.c", "pyproject.toml")  # what a benchmark's figures depend on (not docs)
+CODE = ("*.py", "*.dbc", "*.c", "config", "pyproject.toml")  # what the figures depend on (not docs, not docs/perf)
 
 
 class BenchError(AiderError):
@@ -33,8 +33,9 @@ class BenchError(AiderError):
 
 def machine() -> dict[str, Any]:
     """What the figures were measured on: CPU, cores, kernel, Python, and the commit."""
-    model = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                  if line.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").exists() else platform.processor()
+    cpuinfo = Path("/proc/cpuinfo")
+    lines = cpuinfo.read_text().splitlines() if cpuinfo.exists() else []
+    model = next((line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")), platform.processor())
     try:
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
                                 check=True).stdout.strip()
