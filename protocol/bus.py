@@ -22,6 +22,7 @@ from can.interfaces.virtual import VirtualBus, channels_lock
 
 from config import BusConfig
 from protocol.clock import MonotonicClock, epoch_s
+from config.loader import AiderError
 from protocol.errors import BusUnavailableError
 
 _FIXES = (
@@ -136,6 +137,29 @@ ECHO_WINDOW = 1024
 
 def _frame_key(msg: can.Message) -> tuple[int, bool, bool, bytes]:
     return msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, bytes(msg.data)
+
+
+class ListenOnly:
+    """A bus that can only be read: ``recv`` and ``shutdown`` reach it, ``send`` never does (it
+    raises :attr:`error` with :attr:`REFUSAL` and is counted in ``sends_refused``). A passive tool's
+    only bus handle, so no code path of it transmits; subclasses say whose and raise their own error."""
+
+    REFUSAL = "a passive listener never sends a frame"
+    error: type[Exception] = AiderError
+
+    def __init__(self, bus: can.BusABC) -> None:
+        self._bus = bus
+        self.sends_refused = 0
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        return self._bus.recv(timeout)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.sends_refused += 1
+        raise self.error(self.REFUSAL)
+
+    def shutdown(self) -> None:
+        self._bus.shutdown()
 
 
 #: python-can's default IPv4 multicast group; a run of its own takes a free port on it

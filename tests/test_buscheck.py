@@ -175,7 +175,7 @@ def test_the_listen_only_bus_refuses_to_send():
         quiet = tools.busmonitor.ListenOnlyBus(bus)
         with pytest.raises(tools.buscheck.BusCheckError, match="listen-only"):
             quiet.send(can.Message(arbitration_id=0x80, data=b"\0" * 5, is_extended_id=False))
-        assert quiet.send_attempts == 1
+        assert quiet.sends_refused == 1
 
 
 @contextlib.contextmanager

@@ -25,7 +25,7 @@ from typing import Any
 import can
 
 from config import Config
-from protocol.bus import open_bus
+from protocol.bus import ListenOnly, open_bus
 from protocol.catalog import TICK_MS, Catalog, MessageSpec
 from protocol.clock import Clock, TickTimer
 from protocol.codec import Codec, Decoded
@@ -36,19 +36,11 @@ from tools.buscheck import CONTROLLER, BusCheckError
 GAP_FACTOR = 2.0  # a cyclic message whose interval exceeds this many cycle times has a gap
 
 
-class ListenOnlyBus:
-    """A bus that can only be read: every send attempt is counted and refused."""
+class ListenOnlyBus(ListenOnly):
+    """The listen check's bus: every send attempt is counted and refused."""
 
-    def __init__(self, bus: can.BusABC) -> None:
-        self._bus = bus
-        self.send_attempts = 0
-
-    def recv(self, timeout: float | None = None) -> can.Message | None:
-        return self._bus.recv(timeout=timeout)
-
-    def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        self.send_attempts += 1
-        raise BusCheckError("listen-only: this check never sends")
+    REFUSAL = "listen-only: this check never sends"
+    error = BusCheckError
 
 
 # -- what was seen --------------------------------------------------------------------------------
@@ -207,9 +199,9 @@ def listen(bus: Any, codec: Codec, clock: Clock, *, duration_s: float, max_delta
         _receive(quiet, receiver, monitor, clock, min(remaining, 0.1))
     frames = receiver.stats.accepted + receiver.stats.rejected_total
     result = {"mode": "listen", "duration_s": duration_s, "frames_received": frames,
-              "frames_sent": quiet.send_attempts, **monitor.report(receiver)}
+              "frames_sent": quiet.sends_refused, **monitor.report(receiver)}
     result["problems"] = monitor.problems(receiver)
-    result["ok"] = not result["problems"] and quiet.send_attempts == 0
+    result["ok"] = not result["problems"] and quiet.sends_refused == 0
     return result
 
 

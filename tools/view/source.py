@@ -12,6 +12,7 @@ from typing import Any
 
 import can
 
+import protocol.bus as protocol_bus
 from config.loader import AiderError
 from protocol.clock import MonotonicClock, epoch_s
 from tools.view.model import ViewModel
@@ -48,23 +49,10 @@ class Feed:
         return snap
 
 
-class ListenOnly:
-    """A bus the view can only read: ``recv`` and ``shutdown`` reach it, ``send`` never does (it
-    raises and is counted). The view's only bus handle, so no code path of the view transmits."""
+class ListenOnly(protocol_bus.ListenOnly):
+    """The view's only bus handle: it can only read, so no code path of the view transmits."""
 
-    def __init__(self, bus: can.BusABC) -> None:
-        self._bus = bus
-        self.sends_refused = 0
-
-    def recv(self, timeout: float | None = None) -> can.Message | None:
-        return self._bus.recv(timeout)
-
-    def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        self.sends_refused += 1
-        raise AiderError("the live view is a passive listener: it never sends a frame")
-
-    def shutdown(self) -> None:
-        self._bus.shutdown()
+    REFUSAL = "the live view is a passive listener: it never sends a frame"
 
 
 class BusReader(threading.Thread):
