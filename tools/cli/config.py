@@ -57,7 +57,8 @@ _BODY_OPTIONS = {"mass_kg": "--mass", "height_m": "--height", "stick_length_m": 
 def run_body(args: argparse.Namespace) -> int:
     import yaml
 
-    from config import ConfigError, default_config_path, load_config
+    from config import ConfigError, default_config_path, load_config, with_overrides
+    from config.loader import config_to_dict
     from tools.population import estimated_body
 
     base = load_config(args.config or default_config_path())
@@ -67,18 +68,17 @@ def run_body(args: argparse.Namespace) -> int:
     stick_m = args.stick_length or base.sim.model.sticks.length_m * args.height / base.sim.model.patient.height_m
     try:
         overrides = estimated_body(base, mass_kg=args.mass, height_m=args.height, stick_m=stick_m, source="aider-exo config body")
+        controller = config_to_dict(with_overrides(base, overrides, source="aider-exo config body"))["controller"]  # its checks too
     except ConfigError as exc:
         option = _BODY_OPTIONS.get(exc.key or "")
         if option is None:
             raise
         raise ConfigError(f"{option}: {exc.message}") from None
-    nested: dict = {}
-    for key, value in overrides.items():
-        *path, leaf = key.split(".")
-        node = nested
-        for part in path:
-            node = node.setdefault(part, {})
-        node[leaf] = [round(float(v), 4) for v in value] if isinstance(value, list) else round(float(value), 4)
+    nested: dict = {"controller": {"legs": {}, "body": {}}}
+    for key in overrides:  # controller.SECTION.NAME, in fitted_body's order
+        _, section, name = key.split(".")
+        value = controller[section][name]
+        nested["controller"][section][name] = [round(v, 4) for v in value] if isinstance(value, list) else round(value, 4)
     if args.json:
         print_json({"mass_kg": args.mass, "height_m": args.height, "stick_length_m": round(stick_m, 4), **nested})
         return 0
