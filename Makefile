@@ -1,5 +1,6 @@
 # Quick start: `make demo` (set up and run the main job) and `make test` (set up and run every test).
-# Both create .venv and install what they need; as root they also apt-get install
+# Both create .venv and install the project with every extra (sim, view, cluster, test; `pip install .`
+# alone is the controller-only core: docs/DEPLOY.md); as root they also apt-get install
 # user-mode-linux, kmod and can-utils when missing (the vcan sandbox and the CAN peer tools), and
 # chromium (the live view's browser tests drive it with playwright).
 
@@ -18,7 +19,7 @@ $(STAMP): pyproject.toml
 	@test -n "$(PYTHON)" || { echo "make: no python3 found (Python 3.11 or newer needed)"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,cluster]'
+	$(PY) -m pip install --quiet -e '.[sim,view,cluster,test]'
 	@touch $(STAMP)
 
 # The vcan sandbox (user-mode Linux + kmod), can-utils (candump, canplayer, cangen) and chromium.

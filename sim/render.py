@@ -162,19 +162,11 @@ def encode_png(rgb: np.ndarray) -> bytes:
 
 
 def atomic_write(path: str | os.PathLike[str], write: Callable[[IO[bytes]], None]) -> Path:
-    """Call ``write(file)`` on ``<path>.tmp``, fsync, then rename over ``path``; no ``.tmp`` survives an error."""
-    path = Path(path)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    try:
-        with open(tmp, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    """Call ``write(file)`` on a temporary file beside ``path``, fsync, then rename over ``path``;
+    nothing survives an error (:func:`config.files.atomic_write`)."""
+    from config.files import atomic_write as safe_write
+
+    return safe_write(path, write)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -7,7 +7,8 @@ import sys
 from pathlib import Path
 from typing import Any, Callable
 
-from tools.cli.common import StopSignals, add_config_options, add_mode_option, load_cli_config, positive_float, positive_int, print_json, sim_mode
+from config.files import check_output
+from tools.cli.common import StopSignals, add_config_options, add_mode_option, load_cli_config, positive_float, positive_int, print_json, sim_mode, seed_type
 
 FORMATS_HELP = "traces: .log (candump -l/-L), .asc, .blf, .trc, .csv (python-can), .mf4 (with asammdf); - reads candump -L from stdin"
 
@@ -24,7 +25,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="record the lock-step pipeline (controller, nodes, simulation) walking CYCLES gait cycles in this process")
     add_mode_option(r, "--walk: the simulation's mode")
     r.add_argument("--max-time", type=positive_float, metavar="S", help="--walk: simulated seconds at most")
-    r.add_argument("--seed", type=int, help="seed of the run (--walk: of the simulation, default 0); kept in the sidecar")
+    r.add_argument("--seed", type=seed_type, help="seed of the run (--walk: of the simulation, default 0); kept in the sidecar")
     r.add_argument("--count", type=positive_int, help="stop after this many frames")
     r.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds")
     r.add_argument("--idle-timeout", type=positive_float, metavar="S", help="stop after S seconds without a frame")
@@ -126,6 +127,11 @@ def _input(args: argparse.Namespace, *, role: str = "all") -> Any:
     return TraceInput(args.files, dbc=args.dbc, selection=selection, role=role)
 
 
+def _inputs(args: argparse.Namespace) -> list[Any]:
+    """Every file the command reads (an output must be none of them)."""
+    return [*args.files, getattr(args, "dbc", None), getattr(args, "config", None)]
+
+
 def _warn(lines: list[str]) -> None:
     for line in lines:
         print(f"aider-exo: warning: {line}", file=sys.stderr)
@@ -206,6 +212,8 @@ def run_decode(args: argparse.Namespace) -> int:
     from tools.trace.decode import OK, Formatter, TraceDecoder, write_csv, write_jsonl, write_table
     from tools.trace.files import atomic_output
 
+    if args.output:
+        check_output(args.output, inputs=_inputs(args), option="-o")  # before reading: never over an input
     max_delta, _ = _protocol_settings(args)
     src = _input(args)
     decoder = TraceDecoder(src.codec, max_delta_counter=max_delta)
@@ -217,7 +225,7 @@ def run_decode(args: argparse.Namespace) -> int:
                                  "jsonl": lambda r, f, o, **kw: write_jsonl(r, f, o, catalog=src.catalog, **kw)}[args.format]
     if args.output:
         try:
-            with atomic_output(args.output) as tmp, tmp.open("w", encoding="utf-8", newline="") as out:
+            with atomic_output(args.output, inputs=_inputs(args)) as tmp, tmp.open("w", encoding="utf-8", newline="") as out:
                 write(rows, fmt, out)
         except OSError as exc:
             raise TraceError(f"{args.output}: cannot write ({exc})") from None
@@ -251,12 +259,13 @@ def run_plot(args: argparse.Namespace) -> int:
     from tools.trace.decode import Formatter, TraceDecoder
     from tools.trace.plot import plot_png
 
+    check_output(args.output, inputs=_inputs(args), option="-o")  # before reading: never over an input
     max_delta, _ = _protocol_settings(args)
     src = _input(args)
     decoder = TraceDecoder(src.codec, max_delta_counter=max_delta)
     fmt = Formatter(src.catalog, src.selection, labels=False)
     title = args.title or ", ".join(Path(f).name for f in args.files)
-    result = plot_png(decoder.rows(src.frames(), src.selection), fmt, args.output, title=title)
+    result = plot_png(decoder.rows(src.frames(), src.selection), fmt, args.output, title=title, inputs=_inputs(args))
     warnings = src.warnings(decoder.receiver)
     if args.json:
         print_json({**result, "input": src.report.as_dict(), "warnings": warnings})

@@ -14,15 +14,15 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata
 import json
-import os
 import re
 import subprocess
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from config import Config, config_hash
+from config.files import atomic_path
 from protocol.catalog import Catalog
 from tools.trace import TraceError
 
@@ -37,22 +37,12 @@ def partial_path(path: Path) -> Path:
 
 
 @contextmanager
-def atomic_output(path: str | Path) -> Iterator[Path]:
-    """Yield the temporary path to write; it is renamed onto ``path`` when the block ends
-    normally and removed when it raises (or is interrupted)."""
-    path = Path(path)
-    if path.is_dir():
-        raise TraceError(f"{path}: is a folder, not a file")
-    if not path.parent.is_dir():
-        raise TraceError(f"{path.parent}: no such folder")
-    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
-    try:
+def atomic_output(path: str | Path, *, inputs: Iterable[str | Path | None] = ()) -> Iterator[Path]:
+    """Yield the temporary path to write; it is flushed and renamed onto ``path`` when the block ends
+    normally and removed when it raises (or is interrupted): :func:`config.files.atomic_path`, which
+    also refuses an output that is one of ``inputs``."""
+    with atomic_path(path, inputs=inputs) as tmp:
         yield tmp
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    if tmp.exists():
-        os.replace(tmp, path)
 
 
 def write_json(path: str | Path, data: Any) -> None:
