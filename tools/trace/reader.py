@@ -276,7 +276,7 @@ def frames_of_file(path: str | Path, report: ReadReport, stdin: TextIO | None = 
         yield from _candump_frames(stdin or sys.stdin, "<stdin>", report)
         return
     path = _checked(path)
-    suffix = path.suffix.lower()
+    suffix = trace_suffix(path)
     report.files.append(str(path))
     if suffix in (".log", ".csv"):
         parse = _candump_frames if suffix == ".log" else _csv_frames
@@ -318,7 +318,7 @@ def check_has_frames(paths: Iterable[str | Path]) -> None:
 def no_frames_reason(path: str | Path, report: ReadReport) -> str:
     """One line: why ``path`` gave no frame."""
     name = "<stdin>" if str(path) == "-" else str(path)
-    kind = "standard input" if str(path) == "-" else f"a {Path(path).suffix.lower()} trace"
+    kind = "standard input" if str(path) == "-" else f"a {trace_suffix(path)} trace"
     try:
         empty = str(path) != "-" and Path(path).stat().st_size == 0
     except OSError:
@@ -339,9 +339,18 @@ def no_frames_reason(path: str | Path, report: ReadReport) -> str:
     return f"{name}: no CAN frame could be read ({why}): is it {kind}?"
 
 
+def trace_suffix(path: str | Path) -> str:
+    """The format's suffix of ``path``, lower case: a file still being written by the session
+    recorder (``NAME.log.part``, or left so by a recorder that was killed) is read as its format."""
+    p = Path(path)
+    if p.suffix.lower() == ".part" and Path(p.stem).suffix:
+        return Path(p.stem).suffix.lower()
+    return p.suffix.lower()
+
+
 def _checked(path: str | Path) -> Path:
     p = Path(path)
-    if p.suffix.lower() not in READ_SUFFIXES:
+    if trace_suffix(p) not in READ_SUFFIXES:
         raise TraceError(f"{p}: unknown trace format {p.suffix or '(no suffix)'!r}; readable: {', '.join(READ_SUFFIXES)}")
     if p.is_dir():
         raise TraceError(f"{p}: is a folder, not a trace file")

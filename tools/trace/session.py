@@ -78,6 +78,23 @@ def session_files(folder: Path, channel: str) -> list[tuple[int, Path]]:
     return sorted(found)
 
 
+def check_order(paths: Iterable[str | Path]) -> list[str]:
+    """For the recorder's files given to a command that needs them in recording order (``trace
+    resim``): a :class:`TraceError` when they are given out of order (by channel and sequence
+    number), warnings for sequence numbers missing between them (a file deleted by ``--keep`` or by
+    hand: its frames are not in the recording). Files of other names are not checked."""
+    named = [(Path(p), NAME_RE.fullmatch(Path(p).name)) for p in paths if str(p) != "-"]
+    if len(named) < 2 or not all(m for _, m in named) or len({m["channel"] for _, m in named}) > 1:
+        return []
+    pairs = list(zip([(p, int(m["seq"])) for p, m in named], [(p, int(m["seq"])) for p, m in named][1:]))
+    for (pa, a), (pb, b) in pairs:
+        if b <= a:
+            raise TraceError(f"{pb.name} comes before {pa.name} in the recording (sequence {b:06d} < {a:06d}): "
+                             "give the recorder's files in recording order (their names sort so: can0_*.log)")
+    return [f"the recording's file(s) {a + 1:06d}{f' to {b - 1:06d}' if b - a > 2 else ''} not given between "
+            f"{pa.name} and {pb.name}: their frames are missing" for (pa, a), (pb, b) in pairs if b - a > 1]
+
+
 def check_folder(folder: Path) -> None:
     """One line when ``folder`` cannot hold the recording."""
     if not folder.exists():
