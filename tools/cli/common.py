@@ -101,16 +101,17 @@ def positive_int(text: str) -> int:
 SEED_MAX = 2**32 - 1
 
 
-def int_in(lo: int, hi: int, what: str) -> Callable[[str], int]:
-    """An argparse type: an integer in lo..hi (``what`` names it in its ``__name__``)."""
+def bounded(cast: Callable[[str], float], lo: float, hi: float, what: str, unit: str = "") -> Callable[[str], Any]:
+    """An argparse type: a number (``cast``: int or float) in lo..hi; ``what`` names it (its
+    ``__name__``, shown by argparse) and ``unit`` follows the bounds in the message."""
 
-    def parse(text: str) -> int:
+    def parse(text: str) -> Any:
         try:
-            value = int(text)
+            value = cast(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-        if not lo <= value <= hi:
-            raise argparse.ArgumentTypeError(f"{value} is outside {lo}..{hi}")
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if cast is int else 'a number'}") from None
+        if not lo <= value <= hi:  # NaN fails too
+            raise argparse.ArgumentTypeError(f"{value} is outside {lo}..{hi}{unit}")
         return value
 
     parse.__name__ = what
@@ -118,9 +119,9 @@ def int_in(lo: int, hi: int, what: str) -> Callable[[str], int]:
 
 
 #: a seed: numpy's seeds are unsigned 32-bit
-seed_type = int_in(0, SEED_MAX, "seed")
+seed_type = bounded(int, 0, SEED_MAX, "seed")
 #: a TCP port (0: any free one)
-port = int_in(0, 65535, "port")
+port = bounded(int, 0, 65535, "port")
 
 
 def positive_float(text: str) -> float:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from config import ConfigError, default_config_path, load_config
 from config.files import check_output_folder
-from tools.cli.common import add_mode_option, positive_float, positive_int, print_json, seed_type
+from tools.cli.common import add_mode_option, bounded, positive_float, positive_int, print_json, seed_type
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -77,15 +77,7 @@ def _lengths(text: str) -> list[float]:
     return values
 
 
-def _length(text: str) -> float:
-    """An argparse type: one step length, m, within the bounds of --lengths."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not LENGTH_MIN_M <= value <= LENGTH_MAX_M:
-        raise argparse.ArgumentTypeError(f"{text} m: a step length must lie in {LENGTH_MIN_M}..{LENGTH_MAX_M} m")
-    return value
+_length = bounded(float, LENGTH_MIN_M, LENGTH_MAX_M, "step length", " m")  # one step length, within the bounds of --lengths
 
 
 def run_sweep(args: argparse.Namespace) -> int:

@@ -241,7 +241,7 @@ def run_record(args: argparse.Namespace) -> int:
 def run_decode(args: argparse.Namespace) -> int:
     from tools.trace import TraceError
     from tools.trace.decode import OK, Formatter, TraceDecoder, write_csv, write_jsonl, write_table
-    from tools.trace.files import atomic_output
+    from config.files import atomic_path
 
     if args.output:
         check_output(args.output, inputs=_inputs(args), option="-o")  # before reading: never over an input
@@ -256,7 +256,7 @@ def run_decode(args: argparse.Namespace) -> int:
                                  "jsonl": lambda r, f, o, **kw: write_jsonl(r, f, o, catalog=src.catalog, **kw)}[args.format]
     if args.output:
         try:
-            with atomic_output(args.output, inputs=_inputs(args)) as tmp, tmp.open("w", encoding="utf-8", newline="") as out:
+            with atomic_path(args.output, inputs=_inputs(args)) as tmp, tmp.open("w", encoding="utf-8", newline="") as out:
                 write(rows, fmt, out)
         except OSError as exc:
             raise TraceError(f"{args.output}: cannot write ({exc})") from None

@@ -16,13 +16,11 @@ import importlib.metadata
 import json
 import re
 import subprocess
-from collections.abc import Iterable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from config import Config, config_hash
-from config.files import atomic_path
+from config.files import write_text
 from protocol.catalog import Catalog
 from tools.trace import TraceError
 
@@ -36,18 +34,8 @@ def partial_path(path: Path) -> Path:
     return path.with_name(f"{path.stem}.partial{path.suffix}")
 
 
-@contextmanager
-def atomic_output(path: str | Path, *, inputs: Iterable[str | Path | None] = ()) -> Iterator[Path]:
-    """Yield the temporary path to write; it is flushed and renamed onto ``path`` when the block ends
-    normally and removed when it raises (or is interrupted): :func:`config.files.atomic_path`, which
-    also refuses an output that is one of ``inputs``."""
-    with atomic_path(path, inputs=inputs) as tmp:
-        yield tmp
-
-
 def write_json(path: str | Path, data: Any) -> None:
-    with atomic_output(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2) + "\n")
+    write_text(path, json.dumps(data, indent=2) + "\n")
 
 
 def sidecar_path(trace: str | Path) -> Path:
