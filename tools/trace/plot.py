@@ -12,9 +12,9 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from config.files import atomic_path
 from tools.trace import TraceError
 from tools.trace.decode import OK, Formatter, Row
-from config.files import atomic_path
 
 
 def collect(rows: Iterable[Row], fmt: Formatter) -> tuple[dict[tuple[str, str], tuple[str, list[float], list[float]]], list[float]]:
