@@ -1,0 +1,169 @@
+"""Quasi-static whole-body balance by contact-force distribution (pure numpy).
+
+A desired wrench at the centre of mass is distributed over the loaded contacts: feet act at their
+ankle pins (a passive pitch ankle transmits force but no moment), stick tips at the tip. Each
+contact force lies in a linearised friction cone (non-negative combinations of four pyramid
+edges) above a minimum normal load, so a contact can push but never pull. The distribution is a
+non-negative least-squares fit; when the CoM lies outside the support polygon no admissible
+distribution produces the wrench and the residual says so: that is how the HHEA falls.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import nnls as _scipy_nnls
+
+from sim.linalg import cross
+
+
+def nnls(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """argmin ||a x - b|| subject to x >= 0 (SciPy's Lawson-Hanson active-set solver)."""
+    return _scipy_nnls(a, b, maxiter=10 * a.shape[1])[0]
+
+
+@dataclass(frozen=True)
+class Contact:
+    """A support point: ``link`` is the joint index of its link, ``point`` its world position."""
+
+    name: str
+    link: int
+    point: np.ndarray
+    cost: float  # relative effort of loading it (arms cost more than legs)
+    lateral: bool = True  # False: no force across the walking direction (a leg without frontal-plane joints)
+    axis: np.ndarray | None = None  # a strut's direction (unit, the force on the body along it): the force lies in a narrow pyramid about it
+    spread: float = 0.15
+
+
+@functools.lru_cache(maxsize=16)
+def pyramid_edges(mu: float, lateral: bool = True) -> np.ndarray:
+    """(4, 3) unit-normal-load edges of a friction pyramid with coefficient ``mu``; without
+    ``lateral`` the pyramid is flattened to the x-z plane. Constant for its arguments: one
+    read-only array per (mu, lateral)."""
+    mu_y = mu if lateral else 0.0
+    edges = np.array([[mu, 0, 1], [-mu, 0, 1], [0, mu_y, 1], [0, -mu_y, 1]], dtype=float)
+    edges.flags.writeable = False
+    return edges
+
+
+@functools.lru_cache(maxsize=64)
+def _stacked_edges(mu: float, laterals: tuple[bool, ...]) -> np.ndarray:
+    """(k, 4, 3) friction-pyramid edges of k contacts, read-only (a handful of combinations occur)."""
+    edges = np.stack([pyramid_edges(mu, lateral) for lateral in laterals])
+    edges.flags.writeable = False
+    return edges
+
+
+def distribute(
+    wrench: np.ndarray,
+    com: np.ndarray,
+    contacts: list[Contact],
+    *,
+    mu: float,
+    min_normal_n: float,
+    weights: np.ndarray,
+    known_moment: np.ndarray | None = None,
+) -> tuple[np.ndarray, float]:
+    """Contact forces (k, 3) that best produce ``wrench`` = (force, moment about the CoM).
+
+    ``known_moment`` is a moment the body receives anyway (the passive ankle springs), which the
+    contact forces need not supply. Returns the forces and the weighted residual norm of the fit.
+
+    Each contact carries its minimum normal load ``f0`` plus non-negative amounts ``lam`` of its
+    four pyramid edges; the least-squares system stacks the weighted wrench rows over the
+    regularisation (each edge's amount at the square root of its contact's cost).
+    """
+    if known_moment is not None:
+        wrench = wrench.copy()
+        wrench[3:] -= known_moment
+    k = len(contacts)
+    if k == 0:
+        return np.zeros((0, 3)), float(np.linalg.norm(weights * wrench))
+    edges = np.array(_stacked_edges(mu, tuple(c.lateral for c in contacts)))  # (k, 4, 3)
+    for i, c in enumerate(contacts):
+        if c.axis is not None:
+            edges[i] = strut_edges(c.axis, c.spread)
+    flat = edges.reshape(-1, 3)
+    r = np.array([c.point for c in contacts]) - com  # (k, 3)
+    n = 4 * k
+    lhs = np.zeros((6 + n, n))
+    lhs[:3] = flat.T
+    lhs[3:6] = cross(r.repeat(4, axis=0), flat).T
+    lhs[:6] *= weights[:, None]
+    lhs[_diagonal(n)] = np.repeat([math.sqrt(c.cost) for c in contacts], 4)
+    # the minimum loads: min_normal_n along each contact's base direction (up, or its strut axis scaled to unit vertical)
+    base_dirs = np.array([c.axis / c.axis[2] if c.axis is not None else np.array([0.0, 0.0, 1.0]) for c in contacts])
+    f0 = min_normal_n * base_dirs
+    base = np.concatenate([f0.sum(axis=0), cross(r, f0).sum(axis=0)])
+    rhs = np.zeros(6 + n)
+    rhs[:6] = weights * (wrench - base)
+    lam = nnls(lhs, rhs)
+    forces = (lam.reshape(k, 4, 1) * edges).sum(axis=1)
+    forces += min_normal_n * base_dirs
+    residual = float(np.linalg.norm(lhs[:6] @ lam - rhs[:6]))
+    return forces, residual
+
+
+@functools.lru_cache(maxsize=16)
+def _diagonal(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index of the regularisation's diagonal, rows 6.. of the (6 + n, n) system."""
+    return 6 + np.arange(n), np.arange(n)
+
+
+@dataclass(frozen=True)
+class WrenchGains:
+    """Spring-damper of the CoM and trunk posture, as in the balance controllers of legged robots."""
+
+    fore_aft_n_m: float = 1500.0
+    fore_aft_ns_m: float = 500.0
+    lateral_n_m: float = 1000.0
+    lateral_ns_m: float = 400.0
+    height_n_m: float = 3000.0
+    height_ns_m: float = 600.0
+    tilt_nm_rad: float = 1500.0
+    tilt_nms_rad: float = 150.0
+    yaw_nms_rad: float = 50.0
+
+
+def desired_wrench(
+    mass_kg: float,
+    com: np.ndarray,
+    com_velocity: np.ndarray,
+    com_target_xy: np.ndarray,
+    hip_height: float,
+    hip_height_target: float,
+    hip_vz: float,
+    trunk_rpy: np.ndarray,
+    trunk_rate: np.ndarray,
+    trunk_target_rp: np.ndarray,
+    gains: WrenchGains,
+    gravity: float = 9.81,
+) -> np.ndarray:
+    """(6,) force and moment about the CoM that pull the HHEA toward its CoM and posture targets."""
+    g = gains
+    force = np.array([
+        g.fore_aft_n_m * (com_target_xy[0] - com[0]) - g.fore_aft_ns_m * com_velocity[0],
+        g.lateral_n_m * (com_target_xy[1] - com[1]) - g.lateral_ns_m * com_velocity[1],
+        mass_kg * gravity + g.height_n_m * (hip_height_target - hip_height) - g.height_ns_m * hip_vz,
+    ])
+    moment = np.array([
+        g.tilt_nm_rad * (trunk_target_rp[0] - trunk_rpy[0]) - g.tilt_nms_rad * trunk_rate[0],
+        g.tilt_nm_rad * (trunk_target_rp[1] - trunk_rpy[1]) - g.tilt_nms_rad * trunk_rate[1],
+        -g.yaw_nms_rad * trunk_rate[2],
+    ])
+    return np.concatenate([force, moment])
+
+
+def strut_edges(axis: np.ndarray, spread: float) -> np.ndarray:
+    """(4, 3) edges of a narrow pyramid about ``axis`` (unit), each scaled to unit vertical component."""
+    a = axis / np.linalg.norm(axis)
+    p = np.cross(a, [0.0, 0.0, 1.0])
+    if np.linalg.norm(p) < 1e-6:
+        p = np.array([1.0, 0.0, 0.0])
+    p /= np.linalg.norm(p)
+    q = np.cross(a, p)
+    e = np.array([a + spread * p, a - spread * p, a + spread * q, a - spread * q])
+    return e / e[:, 2:3]
