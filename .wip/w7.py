@@ -506,6 +506,24 @@ class Walker:
             wrench, com, contacts, mu=0.5, min_normal_n=s.min_contact_n,
             weights=np.array([1.0, 1.0, 1.0, 2.0, 2.0, 0.5]), known_moment=spring,
         )
+        if LEG_FF == "exo":
+            # the exoskeleton's own balance: the same wrench, the sticks' measured forces known, the rest over the feet
+            from sim.sensors import contact_force_on_robot
+            known = np.zeros(6)
+            for t in SIDES:
+                for cp in w.contacts(f"forearm_{t}"):
+                    f_ = contact_force_on_robot(cp); r_ = np.array(cp[6]) - com
+                    known[:3] += f_; known[3:] += np.cross(r_, f_)
+            feet_contacts = [c for c in contacts if c.name.startswith("foot")]
+            wr = wrench.copy(); wr -= known
+            ff_forces, _ = distribute(wr, com, feet_contacts, mu=0.5, min_normal_n=s.min_contact_n,
+                                      weights=np.array([1.0, 1.0, 1.0, 2.0, 2.0, 0.5]), known_moment=spring)
+            fl = [contact.link for contact in feet_contacts]
+            feet_i = [w.link_index[f"foot_{f}"] for f in feet]
+            fp = [contact.point for contact in feet_contacts]
+            g0 = kin.gravity_torques()
+            self._tau_exo = g0 - kin.generalised_force(feet_i + fl, [kin.link_com[i + 1] for i in feet_i] + fp,
+                                                      [(0.0, 0.0, w.masses[i + 1] * GRAVITY) for i in feet_i] + list(ff_forces)) if fl else g0
         g = kin.gravity_torques()  # the arms' and the swing leg's feed-forward
         # minus the contact forces: the stance legs' and planted arms' share; and the floor holds a
         # stance foot up, not the leg
@@ -629,7 +647,9 @@ class Walker:
             else:
                 rel = np.array([self.foot_x[side] - self.hip_cmd_x, b.ankle_height_m - hip_z])
                 hip_pitch = self.pitch_goal
-                if LEG_FF == "cop":
+                if LEG_FF == "exo":
+                    ff = (self._tau_exo[hip_i], self._tau_exo[knee_i])
+                elif LEG_FF == "cop":
                     tl = self._lever_leg_torques(reading, g, cop=True)
                     ff = (tl[hip_i], tl[knee_i])
                 elif LEG_FF == "lever":
@@ -772,12 +792,12 @@ class Walker:
 
 
 MIN_ELBOW = 0.3
-LEAN_X = 0
+LEAN_X = 0.55
 HIP_ADVANCE = 0.0
 MAX_LEAD = 0.02
 MAX_STEP = 0.078
 SWING_LEAD = 0.0
-LEG_FF = 1
+LEG_FF = "exo"
 PLANTAR_ALPHA = 0.5
 COP_K = 15.0
 COP_D = 5.0
