@@ -47,6 +47,7 @@ OTHER = {"l": "r", "r": "l"}
 #: weights of the wrench rows in the distribution (force x y z, moment x y z)
 WRENCH_WEIGHTS = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 0.5])
 FOOT_COST, STICK_COST = 1e-4, 4e-4  # relative effort of loading a foot (the legs) and a stick (the arms)
+LEAN_LEAD_M = 0.05
 
 
 class Phase(enum.Enum):
@@ -225,9 +226,13 @@ class Patient:
                 self._start_stick_moves()
         elif self.phase is Phase.SHIFT:
             lo, hi = self.lift_window(self._lifting())
-            if lo > hi and len(self.stick_queue) == 2 and self.phase_t <= dt:  # the other stick first, if it can go
-                self.stick_queue.reverse()
-                lo, hi = self.lift_window(self._lifting())
+            if len(self._lifting()) == 1 and len(self.stick_queue) == 2:
+                # the other stick first when its window is the wider (the support left by a stick
+                # on the rear foot's side is often a sliver until the other stick stands farther ahead)
+                other_lo, other_hi = self.lift_window(self.stick_queue[1:])
+                if other_hi - other_lo > hi - lo:
+                    self.stick_queue.reverse()
+                    lo, hi = other_lo, other_hi
             target = (lo + hi) / 2 if lo > hi else clamp(float(com[0]), lo, hi)
             if math.isfinite(target):
                 step = g.shift_speed_m_s * dt
@@ -246,7 +251,10 @@ class Patient:
             if led_by_legs and comfortable:
                 self.com_target[0] = max(self.com_target[0], min(float(com[0]), self.lean_goal_x))
             if self.phase is Phase.LEAN and comfortable and self.com_target[0] < self.lean_goal_x:
-                self.com_target[0] = min(self.com_target[0] + g.lean_speed_m_s * dt, self.lean_goal_x)
+                # toward the goal, but never far ahead of the body (a target that runs away asks the
+                # legs and arms for forces they cannot give)
+                lead = float(com[0]) + LEAN_LEAD_M
+                self.com_target[0] = min(self.com_target[0] + g.lean_speed_m_s * dt, self.lean_goal_x, max(lead, self.com_target[0]))
         self.com_target[1] += clamp(-self.com_target[1], -g.lean_speed_m_s * dt, g.lean_speed_m_s * dt)
         self._update_posture()
 

@@ -31,6 +31,7 @@ from protocol.bus import virtual_bus
 from protocol.catalog import TICK_MS
 from protocol.clock import MonotonicClock
 from protocol.enums import GaitState
+from sim.pace import default_max_time_s
 
 #: called after every tick with the tick's result and the controller core
 TickHook = Callable[[TickResult, ControllerCore], None]
@@ -149,11 +150,6 @@ class Pace:
 def walk_config(cfg: Config, mode: str, channel: str) -> Config:
     """``cfg`` for an in-process walk: the simulation in ``mode`` on a virtual bus named ``channel``."""
     return with_overrides(cfg, {"sim.mode": mode, "bus.interface": "virtual", "bus.channel": channel})
-
-
-def default_max_time_s(cycles: int) -> float:
-    """Simulated time a walk of ``cycles`` gait cycles may take before it counts as stalled."""
-    return 20.0 + 15.0 * cycles
 
 
 #: simulated seconds without a step landing after which a walk counts as stalled (its slowest
