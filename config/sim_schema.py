@@ -225,10 +225,16 @@ class GaitConfig:
     stick_move_time_s: float = field_spec(doc="Time the patient takes to move a stick.", unit="s", min=0.1, max=5.0)
     stick_lift_m: float = field_spec(doc="Peak lift of a moving stick tip.", unit="m", min=0.0, max=0.3)
     unload_time_s: float = field_spec(doc="Time the patient takes to unload a stick before lifting it.", unit="s", min=0.0, max=3.0)
-    lean_speed_m_s: float = field_spec(doc="Speed of the patient's lean toward the sticks.", unit="m/s", min=0.01, max=1.0)
+    lean_speed_m_s: float = field_spec(doc="Speed of the lean toward the sticks (the patient's, and the scripted gait's plan).",
+                                       unit="m/s", min=0.01, max=1.0)
+    lean_lead_m: float = field_spec(doc="A lean's CoM goal runs at most this far ahead of the CoM (the patient's and the scripted gait's).",
+                                    unit="m", min=0.0, max=0.3)
+    lean_stall_m: float = field_spec(doc="The scripted gait's lean is over when the CoM gets no farther by this ...", unit="m",
+                                     min=0.0005, max=0.1)
+    lean_stall_s: float = field_spec(doc="... in this time (once it has moved that far) ...", unit="s", min=0.05, max=5.0)
+    lean_start_s: float = field_spec(doc="... or in this time before it has.", unit="s", min=0.05, max=5.0)
     lean_x_min: float = field_spec(doc="The patient leans at least to this X_CoM/X_SP, whatever its intention ...", min=0.0, max=1.0)
     lean_x_max: float = field_spec(doc="... and at most to this one.", min=0.0, max=1.0)
-    lean_tolerance_m: float = field_spec(doc="A lean this close to its goal counts as reached.", unit="m", min=0.0, max=0.05)
     stick_force_comfort_n: float = field_spec(doc="The patient leans no further while a stick carries more.", unit="N", min=10.0, max=2000.0)
     strut_spread: float = field_spec(
         doc="A stick's force lies within this half-width (tangent) of the line from its tip to the shoulder: the arm pushes along itself.",

@@ -47,7 +47,6 @@ OTHER = {"l": "r", "r": "l"}
 #: weights of the wrench rows in the distribution (force x y z, moment x y z)
 WRENCH_WEIGHTS = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 0.5])
 FOOT_COST, STICK_COST = 1e-4, 4e-4  # relative effort of loading a foot (the legs) and a stick (the arms)
-LEAN_LEAD_M = 0.05
 
 
 class Phase(enum.Enum):
@@ -212,12 +211,14 @@ class Patient:
         tips = max(float(self.tip_point(s)[0]) for s in SIDES)
         return heel + clamp(self.plan.intention.lean_x, g.lean_x_min, g.lean_x_max) * (tips - heel)
 
-    def lean_reached(self) -> bool:
-        return self.phase is Phase.LEAN and self.kin.com[0] >= self.lean_goal_x - self.g.lean_tolerance_m
+    def next_lift_window(self) -> tuple[float, float]:
+        """:meth:`lift_window` of the stick (or sticks) to lift next."""
+        return self.lift_window(self._lifting())
 
-    def update(self, reading: Reading, led_by_legs: bool) -> None:
-        """One tick of decisions. ``led_by_legs``: the legs are someone else's (the controller), who
-        may carry the body toward the patient's goal faster than it would: it goes along."""
+    def update(self, reading: Reading) -> None:
+        """One tick of decisions. In the lean and the swing the legs (the exoskeleton's) may carry
+        the body toward the patient's goal faster than it would lean itself: it goes along as far
+        as its goal and no farther, while the sticks' load stays comfortable."""
         g, dt = self.g, self.dt
         self.phase_t += dt
         com = self.kin.com
@@ -248,12 +249,12 @@ class Patient:
             self._move_sticks(reading, dt)
         elif self.phase in (Phase.LEAN, Phase.SWING):
             comfortable = max(reading.stick_force_n) < g.stick_force_comfort_n
-            if led_by_legs and comfortable:
+            if comfortable:
                 self.com_target[0] = max(self.com_target[0], min(float(com[0]), self.lean_goal_x))
             if self.phase is Phase.LEAN and comfortable and self.com_target[0] < self.lean_goal_x:
                 # toward the goal, but never far ahead of the body (a target that runs away asks the
                 # legs and arms for forces they cannot give)
-                lead = float(com[0]) + LEAN_LEAD_M
+                lead = float(com[0]) + g.lean_lead_m
                 self.com_target[0] = min(self.com_target[0] + g.lean_speed_m_s * dt, self.lean_goal_x, max(lead, self.com_target[0]))
         self.com_target[1] += clamp(-self.com_target[1], -g.lean_speed_m_s * dt, g.lean_speed_m_s * dt)
         self._update_posture()
@@ -334,14 +335,15 @@ class Patient:
                 moment += ankle.stiffness_nm_rad * (self.world.q[j] - ankle.rest_rad) * self.kin.joint_axis[j]
         return moment
 
-    def wrench(self) -> np.ndarray:
-        """The wrench at the CoM that pulls the body toward the CoM target and the posture."""
+    def wrench(self, com_target: np.ndarray | None = None) -> np.ndarray:
+        """The wrench at the CoM that pulls the body toward ``com_target`` (by default the patient's
+        own) and the posture."""
         w, kin = self.world, self.kin
         links = w.link_states()
         origin, rot = w.link_frame("trunk")
         feet_mass = sum(w.masses[w.link_index[f"foot_{f}"] + 1] for f in SIDES if self.stance[f])
         return desired_wrench(
-            w.total_mass - feet_mass, kin.com, kin.com_velocity, self.com_target, origin[2], self.hip_goal[1], links.com_velocity[0][2],
+            w.total_mass - feet_mass, kin.com, kin.com_velocity, self.com_target if com_target is None else com_target, origin[2], self.hip_goal[1], links.com_velocity[0][2],
             rpy_from_matrix(rot), rot.T @ links.base_angular_velocity, np.array([0.0, self.g.trunk_pitch_rad]), self.gains,
         )
 

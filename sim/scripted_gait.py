@@ -1,25 +1,35 @@
 """The scripted exoskeleton: a stand-in for the main controller in ``aider-exo sim``.
 
 It drives the four exoskeleton joints through the node boards' interface (track mode: position
-target and torque feed-forward) with the same rules as the controller's gait (docs/CONTROLLER.md),
-reading the simulation where the controller reads its sensors:
+target and torque feed-forward) with the controller's rules (docs/CONTROLLER.md), reading the
+simulation where the controller reads its sensors. It keeps its own plan of where the centre of
+mass should go:
 
-* **Stance legs.** Every stance ankle is commanded where it stands (its fore-aft place measured
-  while the foot is loaded, level at ankle height), the hips toward the patient's goal but at most
-  ``hip_lead_m`` from where they are, the trunk at the patient's pitch; joint targets move at most
-  ``target_step_rad`` a tick. The legs then agree on where the feet are and never drag a foot.
-* **Their torque feed-forward** carries the body: the patient's desired wrench at the CoM less what
-  the sticks measurably push (each stick's load cell along its axis), distributed over the stance
-  soles, as joint torques ``G - J^T f``. With passive ankles the legs and trunk rock about the
-  ankles in a mode that position targets cannot hold; only the legs' share of the load moves it.
-* **Swing.** When the patient's lean has reached its goal with both sticks loaded and both feet
-  down, the rear leg swings along a lift-advance-descend ankle path to ``step_length_m`` ahead of
-  the stance ankle while the stance leg carries the hip ``hip_advance_fraction`` of the step
-  forward; the swing ends when the foot carries load after 75 % of the swing (a landing) or a
-  second after its end.
+* **Shift.** While the patient moves its sticks, toward the window where the next stick may lift
+  (:meth:`sim.patient.Patient.next_lift_window`, the geometry both know), at ``shift_speed_m_s``.
+* **Lean.** With both sticks moved, forward at ``lean_speed_m_s``, at most ``lean_lead_m`` ahead of
+  the CoM, until the patient stops it: the CoM no farther by ``lean_stall_m`` in ``lean_stall_s``
+  (``lean_start_s`` before it has first moved that far) with both sticks and both feet loaded.
+  Then the rear leg swings.
+* **Swing.** The swing ankle follows a lift-advance-descend path to ``step_length_m`` ahead of the
+  stance ankle; the stance leg carries the hip ``hip_advance_fraction`` of the step forward (the
+  exoskeleton's share of the step). The swing ends when the foot carries load after 75 % of the
+  swing (a landing) or a second after its end.
+
+Stance legs: every stance ankle commanded where it stands (its fore-aft place measured while the
+foot is loaded, level at ankle height), the hips toward the plan but at most ``hip_lead_m`` from
+where they are, the trunk at the patient's pitch, joint targets at most ``target_step_rad`` a
+tick apart. Their torque feed-forward carries the body: a wrench at the CoM toward the plan and the
+posture, less what the sticks measurably carry upward (each stick's load cell along its axis),
+distributed over the stance soles, as joint torques ``G - J^T f``. With passive ankles the legs
+and trunk rock about the ankles in a mode that position targets cannot hold; only the legs' share
+of the load moves it. The sticks' fore-aft pushes are left to act: they are how the patient
+stops a lean it does not want.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -29,7 +39,7 @@ from sim.balance import distribute
 from sim.kinematics import Kinematics
 from sim.linalg import clamp, minimum_jerk
 from sim.model import EXO_JOINTS, leg_ik
-from sim.patient import OTHER, SIDES, WRENCH_WEIGHTS, Patient
+from sim.patient import OTHER, SIDES, WRENCH_WEIGHTS, Patient, Phase
 from sim.sensors import Reading, rpy_from_matrix
 from sim.world import GRAVITY, World
 
@@ -46,26 +56,44 @@ class ScriptedGait:
         self.phase_t = 0.0
         self.swing_start = np.zeros(2)
         self.swing_goal_x = 0.0
-        self.swing_hip_x = 0.0  # the hip's place when the swing started
+        self.swing_com_x = 0.0  # the CoM's place when the swing started
+        self.com_goal_x = math.nan  # the plan (the CoM's place at the first update)
+        self.lean = LeanTracker(settings)
         self.foot_x: dict[str, float] = {}
         self.targets = {name: float(world.q[world.joint_index[name]]) for name in EXO_JOINTS}
 
-    # -- when to step ----------------------------------------------------------------------------
+    # -- the plan and when to step -----------------------------------------------------------------
 
     def update(self, reading: Reading, dt: float) -> tuple[str, str] | None:
-        """The swing's start or end this tick, as ``("swing", leg)`` or ``("land", leg)``."""
-        s = self.s
+        """Move the plan on; the swing's start or end this tick, as ``("swing", leg)`` or
+        ``("land", leg)`` (``("timeout", leg)``: the swing ended in the air)."""
+        s, p = self.s, self.patient
+        com_x = float(self.kin.com[0])
+        if math.isnan(self.com_goal_x):
+            self.com_goal_x = com_x
         self.phase_t += dt
-        plantar = reading.heel_force_n + reading.toe_force_n
         if self.swing_leg is None:
-            loaded = bool(np.all(reading.stick_force_n > s.swing_trigger_stick_n)) and bool(np.all(plantar > s.foot_contact_n))
-            if loaded and self.patient.lean_reached() and self.patient.phase_t > 0.3:
-                return self._start_swing(self.next_swing)
+            if p.phase is Phase.LEAN:
+                self.com_goal_x = min(self.com_goal_x + s.lean_speed_m_s * dt, com_x + s.lean_lead_m)
+                self.lean.update(com_x, dt)
+                plantar = reading.heel_force_n + reading.toe_force_n
+                loaded = bool(np.all(reading.stick_force_n > s.swing_trigger_stick_n)) and bool(np.all(plantar > s.foot_contact_n))
+                if loaded and self.lean.stalled:
+                    return self._start_swing(self.next_swing)
+                return None
+            self.lean.reset()
+            if p.phase is Phase.SHIFT:
+                lo, hi = p.next_lift_window()
+                goal = (lo + hi) / 2 if lo > hi else clamp(com_x, lo, hi)
+                if math.isfinite(goal):
+                    self.com_goal_x += clamp(goal - self.com_goal_x, -s.shift_speed_m_s * dt, s.shift_speed_m_s * dt)
             return None
+        self.com_goal_x = self.swing_com_x + self._advance()
         leg = self.swing_leg
-        down = plantar[SIDES.index(leg)] > s.foot_contact_n
+        down = (reading.heel_force_n + reading.toe_force_n)[SIDES.index(leg)] > s.foot_contact_n
         if (self.phase_t > 0.75 * s.swing_time_s and down) or self.phase_t > s.swing_time_s + 1.0:
             self.swing_leg, self.next_swing = None, OTHER[leg]
+            self.com_goal_x = com_x
             return "land" if down else "timeout", leg
         return None
 
@@ -73,7 +101,7 @@ class ScriptedGait:
         self.swing_leg, self.phase_t = leg, 0.0
         self.swing_start = self.patient.ankle_xy(leg)
         self.swing_goal_x = float(self.patient.ankle_xy(OTHER[leg])[0]) + self.s.step_length_m
-        self.swing_hip_x = float(self.world.link_frame("trunk")[0][0])
+        self.swing_com_x = float(self.kin.com[0])
         return "swing", leg
 
     def swing_target(self) -> np.ndarray:
@@ -87,7 +115,7 @@ class ScriptedGait:
         return np.array([x, self.body.ankle_height_m + s.swing_clearance_m * lift + (0.0 if u < 1.0 else -0.01)])
 
     def _advance(self) -> float:
-        """How far the stance leg has carried the hip forward in this swing, by plan."""
+        """How far the stance leg has carried the body forward in this swing, by plan."""
         u = min(self.phase_t / self.s.swing_time_s, 1.0)
         return self.s.hip_advance_fraction * self.s.step_length_m * minimum_jerk(u)
 
@@ -103,11 +131,7 @@ class ScriptedGait:
             if p.stance[side] and (plantar[i] > s.foot_contact_n or side not in self.foot_x):
                 self.foot_x[side] = float(p.ankle_xy(side)[0])
         hip_now = float(origin[0])
-        if self.swing_leg is None:
-            goal = float(p.hip_goal[0])
-        else:
-            goal = self.swing_hip_x + self._advance() if s.hip_advance_fraction > 0.0 else hip_now
-        hip_x = clamp(goal, hip_now - s.hip_lead_m, hip_now + s.hip_lead_m)
+        hip_x = hip_now + clamp(self.com_goal_x - float(self.kin.com[0]), -s.hip_lead_m, s.hip_lead_m)
         tau = self._feed_forward(reading)
         for side in SIDES:
             hip_i, knee_i = self.leg_joints[side]
@@ -135,19 +159,17 @@ class ScriptedGait:
                 w.exo.command(n, Mode.TRACK, target, 0.0, clamp(float(tau[joint]), -100.0, 100.0))
 
     def _feed_forward(self, reading: Reading) -> np.ndarray:
-        """Joint torques that carry the body: the patient's wrench (its CoM target carried forward by
-        the swing's advance) less the sticks' measured pushes, over the stance soles; the swing leg
-        carries its own weight."""
+        """Joint torques that carry the body: the wrench toward the plan and the patient's posture,
+        less what each stick's load cell measures upward along the stick (and its moment), over the
+        stance soles; the swing leg carries its own weight."""
         w, kin, p = self.world, self.kin, self.patient
         com = kin.com
-        wrench = p.wrench()
-        if self.swing_leg is not None and self.s.hip_advance_fraction > 0.0:
-            wrench[0] += p.gains.fore_aft_n_m * self._advance()
-        for i, side in enumerate(SIDES):  # each stick's load cell pushes along the stick (forearm axis)
-            origin, rot = w.link_frame(f"forearm_{side}")
-            force = float(reading.stick_force_n[i]) * rot[:, 2]
-            wrench[:3] -= force
-            wrench[3:] -= np.cross(p.tip_point(side) - com, force)
+        wrench = p.wrench(np.array([self.com_goal_x, 0.0]))
+        for i, side in enumerate(SIDES):
+            _, rot = w.link_frame(f"forearm_{side}")
+            up = np.array([0.0, 0.0, float(reading.stick_force_n[i]) * rot[2, 2]])
+            wrench[:3] -= up
+            wrench[3:] -= np.cross(p.tip_point(side) - com, up)
         feet = p.foot_contacts()
         forces, _ = distribute(wrench, com, feet, mu=0.5, min_normal_n=self.s.min_contact_n, weights=WRENCH_WEIGHTS,
                                known_moment=p.ankle_spring_moment())
@@ -157,3 +179,26 @@ class ScriptedGait:
         loads = [(0.0, 0.0, w.masses[i + 1] * GRAVITY) for i in soles] + list(forces)
         grav = kin.gravity_torques()
         return grav - kin.generalised_force(links, points, loads) if links else grav
+
+
+class LeanTracker:
+    """Whether a lean is over: the CoM no farther forward by ``lean_stall_m`` for ``lean_stall_s``
+    once it has moved that far (``lean_start_s`` before: the body takes a moment to follow)."""
+
+    def __init__(self, settings: GaitConfig) -> None:
+        self.s = settings
+        self.reset()
+
+    def reset(self) -> None:
+        self.best_x, self.still_s, self.moved = -math.inf, 0.0, False
+
+    def update(self, com_x: float, dt: float) -> None:
+        if com_x > self.best_x + self.s.lean_stall_m:
+            self.moved = math.isfinite(self.best_x)
+            self.best_x, self.still_s = com_x, 0.0
+        else:
+            self.still_s += dt
+
+    @property
+    def stalled(self) -> bool:
+        return self.still_s >= (self.s.lean_stall_s if self.moved else self.s.lean_start_s)

@@ -226,7 +226,7 @@ class Walker:
         """One 20 ms tick: the patient (and the scripted exoskeleton) act on ``reading``, the
         physics advances, and the sensors are sampled again; returns the new reading."""
         w, p = self.world, self.patient
-        p.update(reading, led_by_legs=self.gait is None)
+        p.update(reading)
         if self.gait is None:
             self._sense_steps(reading)
         else:
