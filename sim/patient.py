@@ -148,13 +148,13 @@ class Patient:
         self.hip_height_nominal = float(origin[2])
 
     def _start_stick_moves(self) -> None:
-        together = self.p.stick_mode == "together" or self.cfg.mode == "sagittal"
+        together = self.p.stick_mode == "together"
         self.stick_queue = list(SIDES) if together else sorted(SIDES, key=lambda s: self.tip_point(s)[0])
         self.plan.intention = self.intention.next()
         self._set_phase(Phase.SHIFT)
 
     def _lifting(self) -> list[str]:
-        together = self.p.stick_mode == "together" or self.cfg.mode == "sagittal"
+        together = self.p.stick_mode == "together"
         return self.stick_queue[:2] if together else self.stick_queue[:1]
 
     def lift_window(self, lifting: list[str]) -> tuple[float, float]:
@@ -165,8 +165,6 @@ class Patient:
         stays = [s for s in SIDES if s not in lifting and self.planted[s]]
         ankles = np.array([self.ankle_xy(s) for s in SIDES if self.stance[s]]).reshape(-1, 2)
         balance = float(ankles[:, 0].mean()) + g.balance_margin_m
-        if self.cfg.mode == "sagittal":
-            return balance, float(ankles[:, 0].max()) - g.shift_margin_m
         tip_xy = np.array([self.tip_point(s)[:2] for s in stays]).reshape(-1, 2)
         poly = convex_hull_2d(pivot_polygon(ankles, tip_xy, ankle_halfwidth=self.cfg.model.foot.half_width_m))
         y = float(self.kin.com[1])

@@ -420,11 +420,21 @@ class FallCriteria:
         return None
 
     @staticmethod
-    def direction(trunk_roll_rad: float, trunk_pitch_rad: float, upright_pitch_rad: float = 0.0) -> str:
-        """Which way a fall goes, from the trunk's attitude when it is detected: ``"lateral"``
-        when the roll is the larger deviation from upright (or not finite), else ``"forward"``
-        (pitched nose-down past its upright lean) or ``"backward"``."""
+    def direction(trunk_roll_rad: float, trunk_pitch_rad: float, upright_pitch_rad: float = 0.0,
+                  com_velocity_xy: tuple[float, float] | None = None, tilted_rad: float = 0.15) -> str:
+        """Which way a fall goes: ``"lateral"``, ``"forward"`` or ``"backward"``. From the trunk's
+        attitude when it is tilted (roll or pitch at least ``tilted_rad`` from upright, or not
+        finite): lateral when the roll is the larger deviation, else forward (pitched nose-down
+        past its upright lean) or backward. A trunk still upright (a body that sinks, as on legs
+        that fold) falls the way its CoM moves, ``com_velocity_xy`` in the trunk's heading frame
+        (x forward, y left), when it is given."""
         pitch = trunk_pitch_rad - upright_pitch_rad
+        tilted = not (max(abs(trunk_roll_rad), abs(pitch)) < tilted_rad)  # also true for nan
+        if not tilted and com_velocity_xy is not None:
+            vx, vy = com_velocity_xy
+            if abs(vy) > abs(vx):
+                return "lateral"
+            return "forward" if vx > 0 else "backward"
         if not abs(trunk_roll_rad) < abs(pitch):  # also true for nan
             return "lateral"
         return "forward" if pitch > 0 else "backward"

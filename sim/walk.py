@@ -253,15 +253,18 @@ class Walker:
     def _fall_reason(self) -> str | None:
         """Ground truth (:class:`sim.truth.FallCriteria`): a link other than a foot or a stick
         touches the floor, or the trunk rolls, pitches or sinks beyond the configured limits; the
-        reason names the fall's direction (``lateral``, ``forward`` or ``backward`` from the trunk's
-        attitude), which :attr:`fall_direction` keeps."""
+        reason names the fall's direction (``lateral``, ``forward`` or ``backward``: from the trunk's
+        attitude, or the CoM's motion while the trunk is upright), which :attr:`fall_direction` keeps."""
         w = self.world
         origin, rot = w.link_frame("trunk")
         roll, pitch, _ = rpy_from_matrix(rot).tolist()
         reason = self._fall_criteria.check(w.touching_links(), roll, pitch, float(origin[2]))
         if reason is None:
             return None
-        self.fall_direction = FallCriteria.direction(roll, pitch, self.s.trunk_pitch_rad)
+        heading = rot[:2, 0] / np.linalg.norm(rot[:2, 0])
+        vx, vy = self.kin.com_velocity[:2].tolist()
+        velocity = (vx * heading[0] + vy * heading[1], -vx * heading[1] + vy * heading[0])
+        self.fall_direction = FallCriteria.direction(roll, pitch, self.s.trunk_pitch_rad, velocity)
         return f"{self.fall_direction} fall: {reason}"
 
     def x_ratio_truth(self, foot_n: float, stick_n: float, min_support_m: float) -> float:

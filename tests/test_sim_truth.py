@@ -307,6 +307,19 @@ def test_fall_direction_is_the_larger_deviation_from_upright(roll, pitch, uprigh
     assert FallCriteria.direction(roll, pitch, upright) == direction
 
 
+@pytest.mark.parametrize(
+    ("roll", "pitch", "velocity", "direction"),
+    [
+        (0.02, 0.11, (0.6, 0.05), "forward"),  # upright, sinking while the CoM runs forward
+        (0.02, 0.09, (-0.3, 0.1), "backward"),
+        (-0.05, 0.10, (0.1, -0.4), "lateral"),
+        (0.6, 0.1, (0.8, 0.0), "lateral"),  # tilted: the attitude decides, not the CoM's motion
+    ],
+)
+def test_an_upright_trunk_falls_the_way_its_com_moves(roll, pitch, velocity, direction):
+    assert FallCriteria.direction(roll, pitch, 0.1, velocity) == direction
+
+
 def test_fall_criteria_validation():
     with pytest.raises(ValueError, match="base_height_m"):
         CRITERIA.check([], 0.0, 0.0)
