@@ -65,6 +65,7 @@ class Measurements:
     stick_force_n: np.ndarray  # (2,)
     heel_force_n: np.ndarray  # (2,)
     toe_force_n: np.ndarray  # (2,)
+    trunk_rate_rad_s: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) body frame
 
 
 @dataclass
@@ -81,6 +82,7 @@ class Estimate:
     x_ratio: float  # X_CoM / X_SP over the loaded contacts (nan without a support extent)
     elbow_rad: tuple[float, float]
     tips_on_floor: tuple[bool, bool]  # whether the elbow angle could put the tip on the floor
+    stick_axes: np.ndarray = field(default_factory=lambda: np.array([[0.0, 0.0, -1.0]] * 2))  # (2, 3) unit, toward the tips
 
 
 @dataclass
@@ -135,7 +137,7 @@ class StateEstimator:
             self._floor_z = total / len(loaded_z)
         floor_z = self._floor_z if self._floor_z is not None else min(ankles[0][2], ankles[1][2]) - legs.ankle_height_m
 
-        tips = []
+        tips, axes = [], []
         on_floor = [False, False]
         stick_rpy = m.stick_rpy_rad.tolist()
         for i in range(2):
@@ -143,6 +145,7 @@ class StateEstimator:
             s_roll, s_pitch, s_yaw = stick_rpy[i]
             forearm = rpy_rows(s_roll, s_pitch, s_yaw - yaw)  # relative to the trunk's heading
             u = (-forearm[0][2], -forearm[1][2], -forearm[2][2])  # stick axis (toward the tip)
+            axes.append(u)
             x_f = (forearm[0][0], forearm[1][0], forearm[2][0])  # forearm x
             # upper arm w = cos e u - sin e x_f; the tip at the floor: A cos e + B sin e = C
             a_, b_ = b.upper_arm_m * u[2], -b.upper_arm_m * x_f[2]
@@ -162,7 +165,7 @@ class StateEstimator:
         support = self._pivot_polygon(ankles, tips, feet_loaded, sticks_loaded)
         return Estimate(np.array(com), np.array(ankles), np.array(tips), feet_loaded, sticks_loaded, floor_z,
                         np.array(support).reshape(-1, 2), self.fore_aft_ratio(com[0], [p[0] for p in support]),
-                        (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]))
+                        (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]), np.array(axes))
 
     def stance_ratio(self, est: Estimate, stance: int) -> float:
         """X_CoM/X_SP over the support of a swing of the other leg: between the rear-most and the

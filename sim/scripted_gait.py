@@ -93,6 +93,7 @@ class ScriptedGait:
         down = (reading.heel_force_n + reading.toe_force_n)[SIDES.index(leg)] > s.foot_contact_n
         if (self.phase_t > 0.75 * s.swing_time_s and down) or self.phase_t > s.swing_time_s + 1.0:
             self.swing_leg, self.next_swing = None, OTHER[leg]
+            self.foot_x[leg] = float(p.ankle_xy(leg)[0])  # where it landed (its last place is a step behind)
             self.com_goal_x = com_x
             return "land" if down else "timeout", leg
         return None
