@@ -217,7 +217,7 @@ class GaitConfig:
     height_speed_m_s: float = field_spec(doc="Speed at which the hips lower or rise.", unit="m/s", min=0.005, max=0.5)
     foot_contact_n: float = field_spec(doc="A foot carrying this is on the floor (a swing foot: has landed).", unit="N", min=1.0, max=800.0)
     landing_fraction: float = field_spec(doc="A landing counts after this fraction of the swing's duration.", min=0.1, max=1.0)
-    landing_height_m: float = field_spec(doc="... with its ankle less than this above its standing height (or the DMP at its end).",
+    landing_height_m: float = field_spec(doc="... with its ankle less than this above the stance ankle (or the DMP at its end).",
                                          unit="m", min=0.0, max=0.2)
     landing_blend_s: float = field_spec(doc="A landed foot takes its share of the body's load over this time.", unit="s", min=0.0, max=2.0)
     landing_depth_m: float = field_spec(doc="The swing's goal lies this far below the stance ankle.", unit="m", min=0.0, max=0.05)

@@ -392,7 +392,7 @@ class GaitPlanner:
         loaded = float(m.heel_force_n[leg] + m.toe_force_n[leg]) > p.foot_contact_n
         # a foot that touches with its toe while its ankle is still high has not landed yet: the
         # leg would push it down from there, and back under the hips
-        low = float(est.ankles[leg][2] - est.floor_z) - self.ankle_height_m < p.landing_height_m or self.swing_t >= tau
+        low = float(est.ankles[leg][2] - est.ankles[stance][2]) < p.landing_height_m or self.swing_t >= tau
         landed = loaded and low and self.swing_t >= p.landing_fraction * tau
         done = landed or self.swing_t >= tau + p.swing_timeout_s
         if done:
@@ -401,6 +401,7 @@ class GaitPlanner:
             self.ankle_cmd[leg] = kin.forward(self.leg, self.targets[2 * leg] - self.pitch_goal_rad, self.targets[2 * leg + 1])
             self.swing_leg = None
             self._landed_leg, self._landed_s = leg, 0.0
+            self.goal_x = com_x  # the next cycle starts from where the swing left the body
             self.hips_cmd_x = -float(np.mean(est.ankles[:, 0]))
             self._new_cycle(est, ref_leg=stance)
         return SwingTick(done, landed, xz)
