@@ -43,6 +43,7 @@ class Contact:
     lateral: bool = True  # False: no force across the walking direction (a leg without frontal-plane joints)
     axis: np.ndarray | None = None
     spread: float = 0.0
+    min_n: float | None = None  # its own minimum normal load (default: the distribution's)
 
 
 @functools.lru_cache(maxsize=16)
@@ -122,7 +123,7 @@ def distribute(
     base_dir[:, 2] = 1.0
     for i in struts:
         base_dir[i] = contacts[i].axis / contacts[i].axis[2]
-    f0 = min_normal_n * base_dir
+    f0 = np.array([min_normal_n if c.min_n is None else c.min_n for c in contacts])[:, None] * base_dir
     base = np.concatenate([f0.sum(axis=0), cross(r, f0).sum(axis=0)])
     rhs = np.zeros(6 + n)
     rhs[:6] = weights * (wrench - base)

@@ -359,7 +359,10 @@ class Patient:
                 tip, shoulder = self.tip_point(t), self.shoulder(t)
                 axis = (shoulder - tip) / np.linalg.norm(shoulder - tip)
                 cost = STICK_COST * (1.0 + 400.0 * (self.unloading[t] / g.unload_time_s) ** 2) if t in self.unloading else STICK_COST
-                contacts.append(Contact(f"tip_{t}", self.forearm_idx[t], tip, cost, axis=axis, spread=g.strut_spread))
+                # in a swing both sticks stay pressed down as when it started: the one the balance
+                # would spare lifts off its tip and the body loses a support it relies on
+                min_n = g.swing_trigger_stick_n if self.phase is Phase.SWING else None
+                contacts.append(Contact(f"tip_{t}", self.forearm_idx[t], tip, cost, axis=axis, spread=g.strut_spread, min_n=min_n))
         wrench = self.wrench()
         wrench[:2] += self.push
         forces, residual = distribute(wrench, kin.com, contacts, mu=0.5, min_normal_n=g.min_contact_n,

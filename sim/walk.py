@@ -125,7 +125,8 @@ class Walker:
         self._next = StepRecord(index=-1, leg="", start_s=0.0)  # the step in the making, until its swing starts
         self.swing_leg: str | None = None
         self.next_swing = "r"
-        self.unloaded_s = {"l": 0.0, "r": 0.0}  # how long each foot has been off the floor (sensed)
+        self.unloaded_s = {"l": 0.0, "r": 0.0}  # how long each foot has been unloaded (sensed)
+        self.airborne_s = {"l": 0.0, "r": 0.0}  # ... and wholly off the floor (felt)
         self.margin = math.inf
         self.fall: str | None = None
         self.fall_direction: str | None = None
@@ -192,16 +193,18 @@ class Walker:
 
     def _sense_steps(self, reading: Reading) -> None:
         """The patient's view of a step the exoskeleton makes: a foot that stays unloaded for
-        ``foot_lift_s`` and is raised ``foot_raise_m`` off the floor has left it (a swing: the
-        patient feels the leg lifted, not merely unloaded as a rear foot is when the CoM passes
-        over the front one), and the swing ends when it carries load again."""
+        ``foot_lift_s``, wholly off the floor (no part of its sole touching) with its ankle raised
+        ``foot_raise_m``, has left it: a swing, the patient feels the leg lifted. A rear foot that
+        is merely unloaded as the CoM passes over the front one, or on its toes in a deep lean, is
+        no swing. The swing ends when the foot carries load again."""
         s, p = self.s, self.patient
         plantar = reading.heel_force_n + reading.toe_force_n
         for i, side in enumerate(SIDES):
             self.unloaded_s[side] = self.unloaded_s[side] + TICK_S if plantar[i] < s.foot_contact_n else 0.0
+            self.airborne_s[side] = self.airborne_s[side] + TICK_S if not self.world.contacts(f"foot_{side}") else 0.0
         if self.swing_leg is None:
             raised = {side: self.kin.joint_origin[p.ankle_idx[side]][2] - self.body.ankle_height_m for side in SIDES}
-            lifted = [side for side in SIDES if self.unloaded_s[side] >= s.foot_lift_s and raised[side] > s.foot_raise_m]
+            lifted = [side for side in SIDES if min(self.unloaded_s[side], self.airborne_s[side]) >= s.foot_lift_s and raised[side] > s.foot_raise_m]
             if len(lifted) == 1 and p.phase is Phase.LEAN:
                 self.next_swing = lifted[0]
                 self._swing_started(lifted[0])
