@@ -113,13 +113,15 @@ class StickTracker:
         tips_x, ref_x = est.tips[:, 0].tolist(), self.ref_x.tolist()
         for i in LEGS:
             force[i] += a * (raw[i] - force[i])
+            if force[i] > p.stick_placed_n and not self.lifted[i]:
+                ref_x[i] = tips_x[i] - ref_ankle_x  # where it stands planted, until it lifts
             advance = tips_x[i] - ref_ankle_x - ref_x[i]
             unloaded[i] = unloaded[i] + self.dt_s if force[i] < p.stick_lifted_n else 0.0
             if unloaded[i] >= p.stick_lift_s:
                 self.lifted[i] = True
             if self.lifted[i] and force[i] > p.stick_placed_n and advance >= p.stick_moved_m:
                 self.moved[i] = True
-        self.force_n[:], self.unloaded_s[:] = force, unloaded
+        self.force_n[:], self.unloaded_s[:], self.ref_x[:] = force, unloaded, ref_x
 
     @property
     def loaded(self) -> bool:
@@ -319,8 +321,15 @@ class GaitPlanner:
                     self.goal_x += _clip(goal - self.goal_x, -step, step)
             self._carry(est, m, LEGS, com_x)
             return DoubleSupport(False, "shift", math.nan, self.sticks.loaded)
-        if max(m.stick_force_n.tolist()) < p.comfort_stick_n:
-            self.goal_x = min(self.goal_x + p.lean_speed_m_s * self.dt_s, com_x + p.lean_lead_m)
+        # the legs lean the body as fast as the sticks' load leaves room below comfort_stick_n,
+        # slowing over the last half of it, and lead no more once it is reached: with the body
+        # on its sticks the arms, not the legs, must stop it
+        room = 1.0 - max(m.stick_force_n.tolist()) / p.comfort_stick_n
+        if room > 0.0:
+            speed = p.lean_speed_m_s * min(1.0, 2.0 * room)
+            self.goal_x = min(self.goal_x + speed * self.dt_s, com_x + p.lean_lead_m * min(1.0, 2.0 * room))
+        else:
+            self.goal_x = min(self.goal_x, com_x)
         self._carry(est, m, LEGS, com_x)
         if com_x > self._lean_best_x + p.lean_stall_m:
             # the lean's first tick sets where it starts; a new best after that: it has moved

@@ -207,9 +207,13 @@ class Patient:
         """The CoM's x at the intended X_CoM/X_SP of the swing's support, the front foot's heel to
         the tips (within ``lean_x_min``..``lean_x_max``)."""
         g = self.g
-        heel = float(self.ankle_xy(self.front_foot())[0]) - self.cfg.model.foot.heel_back_m
+        ankle = float(self.ankle_xy(self.front_foot())[0])
+        heel = ankle - self.cfg.model.foot.heel_back_m
         tips = max(float(self.tip_point(s)[0]) for s in SIDES)
-        return heel + clamp(self.plan.intention.lean_x, g.lean_x_min, g.lean_x_max) * (tips - heel)
+        # never farther than its arms hold in the swing: the sticks' share of the weight over the
+        # stance ankle and the tips (lever rule) at most stick_force_comfort_n on each
+        share = min(1.0, 2.0 * g.stick_force_comfort_n / (self.world.total_mass * GRAVITY))
+        return min(heel + clamp(self.plan.intention.lean_x, g.lean_x_min, g.lean_x_max) * (tips - heel), ankle + share * (tips - ankle))
 
     def next_lift_window(self) -> tuple[float, float]:
         """:meth:`lift_window` of the stick (or sticks) to lift next."""
