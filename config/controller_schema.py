@@ -123,7 +123,7 @@ class BodyConfig:
     foot_kg: float = field_spec(doc="One foot with its shoe and plate.", unit="kg", min=0.2, max=10.0)
     foot_com_xz_m: tuple[float, float] = field_spec(doc="Foot CoM from the ankle (x, z), foot flat.", unit="m", min=-0.3, max=0.3)
     upper_arm_kg: float = field_spec(doc="One upper arm.", unit="kg", min=0.2, max=10.0)
-    upper_arm_com_m: float = field_spec(doc="Upper arm CoM from the shoulder.", unit="m", min=-1.0, max=0.5)
+    upper_arm_com_m: float = field_spec(doc="Upper arm CoM from the shoulder.", unit="m", min=0.0, max=0.5)
     forearm_kg: float = field_spec(doc="One forearm, hand and stick.", unit="kg", min=0.2, max=10.0)
     forearm_com_m: float = field_spec(doc="Forearm-and-stick CoM from the elbow.", unit="m", min=0.0, max=1.5)
     stick_loaded_n: float = field_spec(doc="A stick carrying more than this is on the ground.", unit="N", min=1.0, max=500.0)
@@ -206,7 +206,7 @@ class GaitConfig:
     stick_lifted_n: float = field_spec(doc="A stick whose filtered force stays below this ...", unit="N", min=0.0, max=100.0)
     stick_lift_s: float = field_spec(doc="... this long has been lifted.", unit="s", min=0.02, max=2.0)
     stick_placed_n: float = field_spec(doc="A lifted stick carrying this again is planted ...", unit="N", min=1.0, max=500.0)
-    stick_moved_m: float = field_spec(doc="... and has moved when its tip is this much farther forward than at the last landing.", unit="m", min=-1.0, max=0.5)
+    stick_moved_m: float = field_spec(doc="... and has moved when its tip is this much farther forward than at the last landing.", unit="m", min=0.0, max=0.5)
     stick_filter_s: float = field_spec(doc="Time constant of the stick-force filter of the stick-move detection.", unit="s", min=0.0, max=1.0)
     max_lead_m: float = field_spec(doc="The hips are commanded at most this far fore-aft from where they are.", unit="m", min=0.001, max=0.1)
     hip_advance_fraction: float = field_spec(doc="Swing: the stance leg carries the CoM goal this share of the step length forward.",

@@ -199,8 +199,11 @@ class GaitPlanner:
         self.goal_x, self._ref = math.nan, None
         self._new_cycle(est, ref_leg=int(np.argmin(est.ankles[:, 0])))
 
-    def _new_cycle(self, est: Estimate, ref_leg: int) -> None:
-        self.sticks.reset(est, ref_leg)
+    def _new_cycle(self, est: Estimate, ref_leg: int | None = None) -> None:
+        """A new double support (``ref_leg``: the stick moves start afresh, measured from its ankle;
+        after a swing they were already reset when it started)."""
+        if ref_leg is not None:
+            self.sticks.reset(est, ref_leg)
         self.feet_spacing_m = float(est.ankles[RIGHT][0] - est.ankles[LEFT][0])
         self._lean_best_x, self._lean_still_s, self._lean_moved = -math.inf, 0.0, False
 
@@ -385,6 +388,9 @@ class GaitPlanner:
         self.dmp.reset(x0=np.array([start[0], start[2]]), goal=np.array([aim, -self.p.landing_depth_m]))
         self.swing_leg, self.swing_t, self.step_length_m = leg, 0.0, length_m
         self.swing_from_x = self._com_x  # over the stance ankle: the reference of the lean that led here
+        # the next cycle's stick moves count from now: a patient who feels the foot down before the
+        # landing is detected may already lift a stick
+        self.sticks.reset(est, ref_leg=stance)
         return aim
 
     def swing(self, est: Estimate, m: Measurements) -> SwingTick:
@@ -412,5 +418,5 @@ class GaitPlanner:
             self._landed_leg, self._landed_s = leg, 0.0
             self.goal_x = com_x  # the next cycle starts from where the swing left the body
             self.hips_cmd_x = -float(np.mean(est.ankles[:, 0]))
-            self._new_cycle(est, ref_leg=stance)
+            self._new_cycle(est)
         return SwingTick(done, landed, xz)
