@@ -205,8 +205,7 @@ class GaitConfig:
     lean_start_s: float = field_spec(doc="... or in this long before (the body, still coming back from the stick moves, takes up to half a second to follow the lean).", unit="s", min=0.1, max=10.0)
     stick_lifted_n: float = field_spec(doc="A stick whose filtered force stays below this ...", unit="N", min=0.0, max=100.0)
     stick_lift_s: float = field_spec(doc="... this long has been lifted.", unit="s", min=0.02, max=2.0)
-    stick_placed_n: float = field_spec(doc="A lifted stick carrying this again is planted ...", unit="N", min=1.0, max=500.0)
-    stick_moved_m: float = field_spec(doc="... and has moved when its tip is this much farther forward than at the last landing.", unit="m", min=0.0, max=0.5)
+    stick_placed_n: float = field_spec(doc="A lifted stick carrying this again has moved.", unit="N", min=1.0, max=500.0)
     stick_filter_s: float = field_spec(doc="Time constant of the stick-force filter of the stick-move detection.", unit="s", min=0.0, max=1.0)
     max_lead_m: float = field_spec(doc="The hips are commanded at most this far fore-aft from where they are.", unit="m", min=0.001, max=0.1)
     hip_advance_fraction: float = field_spec(doc="Swing: the stance leg carries the CoM goal this share of the step length forward.",

@@ -15,7 +15,9 @@ carries the next swing. One gait cycle, per leg (docs/CONTROLLER.md):
    patient lifts the one with the wider window first (:func:`controller.support.lift_window`). The
    goal holds while a stick is in the air. A stick has moved once it was off the floor (filtered
    force below ``stick_lifted_n`` for ``stick_lift_s``) and was planted again (above
-   ``stick_placed_n``) at least ``stick_moved_m`` farther forward than it stood at the last landing.
+   ``stick_placed_n``) since the last swing started (wherever it went: a stick put back where it
+   stood is the patient's move too, and a patient who feels the foot down before the landing is
+   detected may already lift one).
 2. **Double support, lean.** With both sticks moved, the goal moves forward at ``lean_speed``, at
    most ``lean_lead`` ahead of the CoM (and not while a stick carries ``comfort_stick_n``): the
    legs lean the body onto the sticks until the patient stops it, pushing back on its sticks
@@ -83,7 +85,7 @@ class SwingTick:
 
 @dataclass
 class StickTracker:
-    """Which sticks the patient has moved since the last landing (see the module doc)."""
+    """Which sticks the patient has moved since the last swing started (see the module doc)."""
 
     params: GaitConfig
     dt_s: float
@@ -92,36 +94,26 @@ class StickTracker:
     unloaded_s: np.ndarray = field(default_factory=lambda: np.zeros(2))
     lifted: list[bool] = field(default_factory=lambda: [False, False])
     moved: list[bool] = field(default_factory=lambda: [False, False])
-    ref_x: np.ndarray = field(default_factory=lambda: np.full(2, math.nan))  # tip - reference ankle, at the landing
-    ref_leg: int = LEFT
 
-    def reset(self, est: Estimate, ref_leg: int) -> None:
-        """A new cycle: the sticks must move again; ``ref_leg``'s foot stays planted until the next
-        swing starts, so tip positions are measured from its ankle."""
-        self.ref_leg = ref_leg
-        self.ref_x = est.tips[:, 0] - est.ankles[ref_leg][0]
+    def reset(self) -> None:
+        """A new cycle: the sticks must move again."""
         self.unloaded_s[:] = 0.0
         self.lifted = [False, False]
         self.moved = [False, False]
 
-    def update(self, est: Estimate, m: Measurements) -> None:
+    def update(self, m: Measurements) -> None:
         p = self.params
         a = min(1.0, self.dt_s / p.stick_filter_s) if p.stick_filter_s > 0 else 1.0
         self.raw_n = np.asarray(m.stick_force_n, dtype=float)
         raw, force, unloaded = self.raw_n.tolist(), self.force_n.tolist(), self.unloaded_s.tolist()
-        ref_ankle_x = est.ankles[self.ref_leg][0]
-        tips_x, ref_x = est.tips[:, 0].tolist(), self.ref_x.tolist()
         for i in LEGS:
             force[i] += a * (raw[i] - force[i])
-            if force[i] > p.stick_placed_n and not self.lifted[i]:
-                ref_x[i] = tips_x[i] - ref_ankle_x  # where it stands planted, until it lifts
-            advance = tips_x[i] - ref_ankle_x - ref_x[i]
             unloaded[i] = unloaded[i] + self.dt_s if force[i] < p.stick_lifted_n else 0.0
             if unloaded[i] >= p.stick_lift_s:
                 self.lifted[i] = True
-            if self.lifted[i] and force[i] > p.stick_placed_n and advance >= p.stick_moved_m:
+            if self.lifted[i] and force[i] > p.stick_placed_n:
                 self.moved[i] = True
-        self.force_n[:], self.unloaded_s[:], self.ref_x[:] = force, unloaded, ref_x
+        self.force_n[:], self.unloaded_s[:] = force, unloaded
 
     @property
     def loaded(self) -> bool:
@@ -197,19 +189,19 @@ class GaitPlanner:
         self.torques = np.zeros(4)
         self.swing_leg = None
         self.goal_x, self._ref = math.nan, None
-        self._new_cycle(est, ref_leg=int(np.argmin(est.ankles[:, 0])))
+        self._new_cycle(est)
 
-    def _new_cycle(self, est: Estimate, ref_leg: int | None = None) -> None:
-        """A new double support (``ref_leg``: the stick moves start afresh, measured from its ankle;
-        after a swing they were already reset when it started)."""
-        if ref_leg is not None:
-            self.sticks.reset(est, ref_leg)
+    def _new_cycle(self, est: Estimate, sticks: bool = True) -> None:
+        """A new double support (``sticks``: the stick moves start afresh; after a swing they did
+        when it started)."""
+        if sticks:
+            self.sticks.reset()
         self.feet_spacing_m = float(est.ankles[RIGHT][0] - est.ankles[LEFT][0])
         self._lean_best_x, self._lean_still_s, self._lean_moved = -math.inf, 0.0, False
 
     def track_sticks(self, est: Estimate, m: Measurements) -> None:
         """Every walking tick: the stick moves since the last landing."""
-        self.sticks.update(est, m)
+        self.sticks.update(m)
 
     # -- the CoM over the floor --------------------------------------------------------------------
 
@@ -388,9 +380,7 @@ class GaitPlanner:
         self.dmp.reset(x0=np.array([start[0], start[2]]), goal=np.array([aim, -self.p.landing_depth_m]))
         self.swing_leg, self.swing_t, self.step_length_m = leg, 0.0, length_m
         self.swing_from_x = self._com_x  # over the stance ankle: the reference of the lean that led here
-        # the next cycle's stick moves count from now: a patient who feels the foot down before the
-        # landing is detected may already lift a stick
-        self.sticks.reset(est, ref_leg=stance)
+        self.sticks.reset()  # the next cycle's stick moves count from now
         return aim
 
     def swing(self, est: Estimate, m: Measurements) -> SwingTick:
@@ -418,5 +408,5 @@ class GaitPlanner:
             self._landed_leg, self._landed_s = leg, 0.0
             self.goal_x = com_x  # the next cycle starts from where the swing left the body
             self.hips_cmd_x = -float(np.mean(est.ankles[:, 0]))
-            self._new_cycle(est)
+            self._new_cycle(est, sticks=False)
         return SwingTick(done, landed, xz)
