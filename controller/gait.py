@@ -108,7 +108,12 @@ class StickTracker:
         raw, force, unloaded = self.raw_n.tolist(), self.force_n.tolist(), self.unloaded_s.tolist()
         for i in LEGS:
             force[i] += a * (raw[i] - force[i])
-            unloaded[i] = unloaded[i] + self.dt_s if force[i] < p.stick_lifted_n else 0.0
+            # with hysteresis: a lifted stick's reading (sensor noise about 0 N) may cross
+            # stick_lifted_n now and then; only a load of stick_placed_n ends the count
+            if force[i] < p.stick_lifted_n:
+                unloaded[i] += self.dt_s
+            elif force[i] > p.stick_placed_n or unloaded[i] < self.dt_s:
+                unloaded[i] = 0.0
             if unloaded[i] >= p.stick_lift_s:
                 self.lifted[i] = True
             if self.lifted[i] and force[i] > p.stick_placed_n:
