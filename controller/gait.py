@@ -289,9 +289,12 @@ class GaitPlanner:
         ill-conditioned); an ankle the joint ranges cannot reach keeps the leg's targets."""
         reach = self.leg.reach_m - self.p.reach_margin_m
         step = self.p.max_target_step_rad
-        pitch = self.pitch_goal_rad
+        measured_pitch = float(m.trunk_rpy_rad[1])
         ankle_cmd, targets = self.ankle_cmd.tolist(), self.targets.tolist()
         for i in LEGS:
+            # a stance leg holds the trunk at its pitch goal; the swing ankle goes where it is
+            # commanded whatever the trunk's pitch (0.04 rad of pitch is 3 cm at the ankle)
+            pitch = measured_pitch if i == self.swing_leg else self.pitch_goal_rad
             x, z = ankle_cmd[i]
             r = math.hypot(x, z)
             if r > reach:
