@@ -51,7 +51,7 @@ import numpy as np
 
 from config.controller_schema import GaitConfig
 from controller import kinematics as kin
-from controller.balance import BalanceGains, Goals, LegLoads, feed_forward
+from controller.balance import GRAVITY, BalanceGains, Goals, LegLoads, feed_forward
 from controller.dmp import Dmp
 from controller.estimator import Estimate, Measurements
 from controller.support import lift_window
@@ -361,7 +361,8 @@ class GaitPlanner:
                 continue
             other = 1 - i
             stays = [(float(est.tips[other][0]), float(est.tips[other][1]))] if est.sticks_loaded[other] else []
-            lo, hi = lift_window(ankles, stays, float(est.com[1]), self.loads.body.foot_half_width_m, p.shift_margin_m, p.balance_margin_m)
+            lo, hi = lift_window(ankles, stays, float(est.com[1]), self.loads.body.foot_half_width_m, p.shift_margin_m, p.balance_margin_m,
+                                  share=p.comfort_stick_n / (self.loads.total_kg * GRAVITY))
             if hi - lo > best[1] - best[0]:
                 best = (lo, hi)
         return best[0] - ref_x, best[1] - ref_x

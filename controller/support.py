@@ -52,12 +52,31 @@ def window_on_line(hull: list[Point], y: float, margin: float) -> tuple[float, f
     return (lo, hi) if lo <= hi else (math.inf, -math.inf)
 
 
+def tip_share_limit(ankles: list[Point], tip: Point, com_y: float, share: float) -> float:
+    """The farthest x on the line at ``com_y`` where the one stick that stays, at ``tip``, carries
+    at most ``share`` of the weight with the two ``ankles``: the tip's barycentric coordinate in
+    the triangle (ankles, tip) is linear in the CoM, 0 on the feet's line and 1 at the tip."""
+    (x0, y0), (x1, y1) = ankles
+    nx, ny = y0 - y1, x1 - x0  # normal of the feet's line ...
+    if nx * (tip[0] - x0) + ny * (tip[1] - y0) < 0.0:
+        nx, ny = -nx, -ny  # ... toward the tip
+    if nx <= 1e-9:
+        return math.inf
+    # nx (x - x0) + ny (com_y - y0) <= share (nx (tip_x - x0) + ny (tip_y - y0))
+    reach = nx * (tip[0] - x0) + ny * (tip[1] - y0)
+    return x0 + (share * reach - ny * (com_y - y0)) / nx
+
+
 def lift_window(ankles: list[Point], tips: list[Point], com_y: float, half_width: float, margin: float,
-                balance_margin: float) -> tuple[float, float]:
+                balance_margin: float, share: float = 1.0) -> tuple[float, float]:
     """Where the CoM may be while a stick is in the air: on the support of both ``ankles`` (each
-    widened by ``half_width`` across) and the ``tips`` that stay, ``margin`` inside its edges, and
-    ``balance_margin`` ahead of the ankles' midpoint. (inf, -inf): nowhere."""
+    widened by ``half_width`` across) and the ``tips`` that stay, ``margin`` inside its edges,
+    ``balance_margin`` ahead of the ankles' midpoint, and (one stick staying) where that stick
+    carries at most ``share`` of the weight (:func:`tip_share_limit`: the arm that is left holds
+    what the lift hands it). (inf, -inf): nowhere."""
     pivots = [(x, y + s * half_width) for x, y in ankles for s in (1.0, -1.0)] + list(tips)
     lo, hi = window_on_line(convex_hull(pivots), com_y, margin)
     lo = max(lo, sum(x for x, _ in ankles) / len(ankles) + balance_margin)
+    if len(tips) == 1 and len(ankles) == 2:
+        hi = min(hi, tip_share_limit(ankles, tips[0], com_y, share))
     return (lo, hi) if lo <= hi else (math.inf, -math.inf)

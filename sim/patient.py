@@ -161,8 +161,9 @@ class Patient:
 
     def lift_window(self, lifting: list[str]) -> tuple[float, float]:
         """(lo, hi) of the CoM's x, at its lateral place, where the body rests on what stays when
-        ``lifting`` lift: ahead of the ankles' midpoint by ``balance_margin_m`` and inside the
-        soles and the other planted stick with ``shift_margin_m`` (lo > hi: no such place)."""
+        ``lifting`` lift: ahead of the ankles' midpoint by ``balance_margin_m``, inside the soles
+        and the other planted stick with ``shift_margin_m``, and with that stick's share of the
+        weight within ``stick_force_comfort_n`` (lo > hi: no such place)."""
         g = self.g
         stays = [s for s in SIDES if s not in lifting and self.planted[s]]
         ankles = np.array([self.ankle_xy(s) for s in SIDES if self.stance[s]]).reshape(-1, 2)
@@ -172,7 +173,15 @@ class Patient:
         y = float(self.kin.com[1])
         far = max([ankles[:, 0].max(), *tip_xy[:, 0]])
         xs = np.linspace(float(ankles[:, 0].min()) - self.cfg.model.foot.heel_back_m, far, 81)
-        held = xs[[stability_margin(poly, (x, y)) >= g.shift_margin_m for x in xs]]
+        ok = np.array([stability_margin(poly, (x, y)) >= g.shift_margin_m for x in xs])
+        if len(tip_xy) == 1 and len(ankles) == 2:
+            # the arm that stays takes what the lift hands it: its share of the weight (the tip's
+            # barycentric coordinate over the two ankles and the tip) at most its comfort
+            a, b, tip = ankles[0], ankles[1], tip_xy[0]
+            edge = b - a
+            share = (edge[0] * (y - a[1]) - edge[1] * (xs - a[0])) / (edge[0] * (tip[1] - a[1]) - edge[1] * (tip[0] - a[0]))
+            ok &= share <= g.stick_force_comfort_n / (self.world.total_mass * GRAVITY)
+        held = xs[ok]
         if not len(held):
             return math.inf, -math.inf
         return max(balance, float(held.min())), float(held.max())
