@@ -35,9 +35,9 @@ def test_a_stick_behind_the_feet_sets_no_limit():
 
 def test_the_window_ends_where_the_arm_that_stays_is_full():
     free = lift_window(FEET, [TIP], 0.0, 0.05, 0.03, 0.0)
-    capped = lift_window(FEET, [TIP], 0.0, 0.05, 0.03, 0.0, share=0.27)
+    capped = lift_window(FEET, [TIP], 0.0, 0.05, 0.03, 0.0, share=0.15)
     assert capped[0] == free[0] == pytest.approx(0.03)  # the margin inside the feet's line
-    assert capped[1] == pytest.approx(0.27 * 0.35)
+    assert capped[1] == pytest.approx(0.15 * 0.35)
     assert capped[1] < free[1]
     # an arm that holds nothing leaves no window
     assert lift_window(FEET, [TIP], 0.0, 0.05, 0.03, 0.0, share=-0.1) == (math.inf, -math.inf)
