@@ -200,6 +200,9 @@ class GaitConfig:
     comfort_stick_n: float = field_spec(doc="The lean pauses while a stick carries this.", unit="N", min=10.0, max=1000.0)
     swing_stick_n: float = field_spec(doc="A step is ready with both sticks carrying this.", unit="N", min=1.0, max=500.0)
     tips_ahead_m: float = field_spec(doc="... both tips this far ahead of the front ankle ...", unit="m", min=0.0, max=0.6)
+    stick_moves: Literal["both", "stance_side"] = field_spec(
+        doc="The sticks the patient moves in each double support: both, or the one on the next swing's stance side "
+            "(the four-point crutch gait). It is the patient's trained pattern: set it as the patient walks.")
     lean_stall_m: float = field_spec(doc="... and the lean over: the swing foot free, the CoM at the patient's limit less this, or no farther forward by this ...", unit="m", min=0.001, max=0.1)
     lean_stall_s: float = field_spec(doc="... in this long, once the lean has moved this far forward ...", unit="s", min=0.1, max=10.0)
     lean_start_s: float = field_spec(doc="... or in this long before (the body, still coming back from the stick moves, takes up to half a second to follow the lean).", unit="s", min=0.1, max=10.0)

@@ -208,8 +208,9 @@ class PatientControlConfig:
     stick_half_width_m: float = field_spec(doc="Lateral distance of the stick tips from the midline.", unit="m", min=0.1, max=0.6)
     arm_stiffness_nm_rad: float = field_spec(doc="Arm joint stiffness of the patient's posture control.", unit="N.m/rad", min=0.0, max=5000.0)
     arm_damping_nms_rad: float = field_spec(doc="Arm joint damping of the patient's posture control.", unit="N.m.s/rad", min=0.0, max=100.0)
-    stick_mode: Literal["together", "alternating"] = field_spec(
-        doc="Both sticks moved at once (the paper's words) or one at a time (the default: docs/SIM.md says why).")
+    stick_mode: Literal["together", "alternating", "four_point"] = field_spec(
+        doc="Per double support: both sticks at once (the paper's words), both one at a time, or one, the stick on the "
+            "front foot's side (the four-point crutch gait; docs/SIM.md says which and why).")
 
 
 @dataclass(frozen=True, kw_only=True)

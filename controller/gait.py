@@ -315,9 +315,9 @@ class GaitPlanner:
         p = self.p
         stance = 1 - swing_leg
         com_x = self._over(est, stance)
-        if not all(self.sticks.moved):
+        if not all(self.sticks.moved[i] for i in self._to_move(stance)):
             if not self.sticks.any_lifted_now:
-                lo, hi = self.lift_window(est)
+                lo, hi = self.lift_window(est, stance)
                 if math.isfinite(lo):
                     goal = com_x if lo <= com_x <= hi else (lo if com_x < lo else hi)
                     step = p.shift_speed_m_s * self.dt_s
@@ -349,14 +349,18 @@ class GaitPlanner:
         goal = self.goal_x + float(est.ankles[stance][0])
         return DoubleSupport(over and ahead and feet and self.sticks.loaded, "lean", goal, self.sticks.loaded)
 
-    def lift_window(self, est: Estimate) -> tuple[float, float]:
+    def _to_move(self, stance: int) -> tuple[int, ...]:
+        """The sticks the patient moves before the swing over ``stance`` (``stick_moves``)."""
+        return LEGS if self.p.stick_moves == "both" else (stance,)
+
+    def lift_window(self, est: Estimate, stance: int) -> tuple[float, float]:
         """Over the reference ankle: the window of the next stick to lift (the wider one of two
         still to move), where the CoM rests on what stays."""
         p = self.p
         ref_x = float(est.ankles[self._ref][0])
         ankles = [(float(a[0]), float(a[1])) for a in est.ankles]
         best = (math.inf, -math.inf)
-        for i in LEGS:
+        for i in self._to_move(stance):
             if self.sticks.moved[i]:
                 continue
             other = 1 - i

@@ -150,8 +150,11 @@ class Patient:
         self.hip_height_nominal = float(origin[2])
 
     def _start_stick_moves(self) -> None:
-        together = self.p.stick_mode == "together"
-        self.stick_queue = list(SIDES) if together else sorted(SIDES, key=lambda s: self.tip_point(s)[0])
+        mode = self.p.stick_mode
+        if mode == "four_point":
+            self.stick_queue = [self.front_foot()]  # the front foot's side: its window is always wide
+        else:
+            self.stick_queue = list(SIDES) if mode == "together" else sorted(SIDES, key=lambda s: self.tip_point(s)[0])
         self.plan.intention = self.intention.next()
         self._set_phase(Phase.SHIFT)
 
@@ -214,11 +217,13 @@ class Patient:
 
     def _lean_goal(self) -> float:
         """The CoM's x at the intended X_CoM/X_SP of the swing's support, the front foot's heel to
-        the tips (within ``lean_x_min``..``lean_x_max``)."""
+        the tips' line where the CoM crosses it, midway between them (within
+        ``lean_x_min``..``lean_x_max``): with the tips staggered (the four-point gait) a lean
+        toward the front one would pass the other."""
         g = self.g
         ankle = float(self.ankle_xy(self.front_foot())[0])
         heel = ankle - self.cfg.model.foot.heel_back_m
-        tips = max(float(self.tip_point(s)[0]) for s in SIDES)
+        tips = float(np.mean([self.tip_point(s)[0] for s in SIDES]))
         # never farther than its arms hold in the swing: the sticks' share of the weight over the
         # stance ankle and the tips (lever rule) at most stick_force_comfort_n on each
         share = min(1.0, 2.0 * g.stick_force_comfort_n / (self.world.total_mass * GRAVITY))
