@@ -199,7 +199,7 @@ class GaitConfig:
                                            unit="m", min=0.0, max=0.2)
     comfort_stick_n: float = field_spec(doc="The lean pauses while a stick carries this.", unit="N", min=10.0, max=1000.0)
     swing_stick_n: float = field_spec(doc="A step is ready with both sticks carrying this.", unit="N", min=1.0, max=500.0)
-    tips_ahead_m: float = field_spec(doc="... both tips this far ahead of the front ankle ...", unit="m", min=0.0, max=0.6)
+    tips_ahead_m: float = field_spec(doc="... the tips' midpoint this far ahead of the front ankle ...", unit="m", min=0.0, max=0.6)
     stick_moves: Literal["both", "stance_side"] = field_spec(
         doc="The sticks the patient moves in each double support: both, or the one on the next swing's stance side "
             "(the four-point crutch gait). It is the patient's trained pattern: set it as the patient walks.")

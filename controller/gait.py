@@ -25,7 +25,7 @@ carries the next swing. One gait cycle, per leg (docs/CONTROLLER.md):
    by ``lean_stall_m`` in ``lean_stall_s`` (``lean_start_s`` before it has first moved that far)
    with the CoM at least half of ``lean_over_stance`` past the stance ankle (a lean that stalls
    short of it waits: a stalled walk, not a swing that tips backward). The step is ready when the
-   lean is over, both sticks carry ``swing_stick_n`` and stand ``tips_ahead`` ahead of the front
+   lean is over, both sticks carry ``swing_stick_n``, their midpoint stands ``tips_ahead`` ahead of the front
    ankle, and both feet carry ``foot_contact_n``. Where the CoM is then against the stance foot is
    the step length's business (the CoM compensation of the paper's equation (8)).
 3. **Swing.** The swing ankle follows the DMP in the stance foot's frame, from where it is to the
@@ -344,7 +344,9 @@ class GaitPlanner:
         # a lean that stalls short of the stance ankle is not over: a swing from there tips backward
         over = stalled and com_x >= p.lean_over_stance_m / 2
         front = float(np.max(est.ankles[:, 0]))
-        ahead = bool(np.all(est.tips[:, 0] > front + p.tips_ahead_m))
+        # the support's front edge where the CoM crosses it: midway between the tips (staggered in
+        # the four-point gait, where the older stick may stand just ahead of the front foot)
+        ahead = float(np.mean(est.tips[:, 0])) > front + p.tips_ahead_m
         feet = bool(np.all(m.heel_force_n + m.toe_force_n > p.foot_contact_n))
         goal = self.goal_x + float(est.ankles[stance][0])
         return DoubleSupport(over and ahead and feet and self.sticks.loaded, "lean", goal, self.sticks.loaded)
