@@ -26,7 +26,7 @@ carries the next swing. One gait cycle, per leg (docs/CONTROLLER.md):
    with the CoM at least half of ``lean_over_stance`` past the stance ankle (a lean that stalls
    short of it waits: a stalled walk, not a swing that tips backward). The step is ready when the
    lean is over, both sticks carry ``swing_stick_n``, their midpoint stands ``tips_ahead`` ahead of the front
-   ankle, and both feet carry ``foot_contact_n``. Where the CoM is then against the stance foot is
+   ankle, and the stance foot carries ``foot_contact_n``. Where the CoM is then against the stance foot is
    the step length's business (the CoM compensation of the paper's equation (8)).
 3. **Swing.** The swing ankle follows the DMP in the stance foot's frame, from where it is to the
    step length ahead of the stance ankle and ``landing_depth`` below it. The stance leg carries the
@@ -334,7 +334,9 @@ class GaitPlanner:
         else:
             self.goal_x = min(self.goal_x, com_x)
         self._carry(est, m, LEGS, com_x)
-        if com_x > self._lean_best_x + p.lean_stall_m:
+        if com_x > self._lean_best_x + p.lean_stall_m and room > 0.0:
+            # (with a stick at comfort_stick_n the patient bears no more: a body that still creeps
+            # forward is not leaning further, and the lean is over after lean_stall_s)
             # the lean's first tick sets where it starts; a new best after that: it has moved
             self._lean_moved = math.isfinite(self._lean_best_x)
             self._lean_best_x, self._lean_still_s = com_x, 0.0
@@ -347,7 +349,9 @@ class GaitPlanner:
         # the support's front edge where the CoM crosses it: midway between the tips (staggered in
         # the four-point gait, where the older stick may stand just ahead of the front foot)
         ahead = float(np.mean(est.tips[:, 0])) > front + p.tips_ahead_m
-        feet = bool(np.all(m.heel_force_n + m.toe_force_n > p.foot_contact_n))
+        # the stance foot carries the body; a lean that has unloaded the rear (swing) foot is the
+        # lean the swing wants
+        feet = float(m.heel_force_n[stance] + m.toe_force_n[stance]) > p.foot_contact_n
         goal = self.goal_x + float(est.ankles[stance][0])
         return DoubleSupport(over and ahead and feet and self.sticks.loaded, "lean", goal, self.sticks.loaded)
 
