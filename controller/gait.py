@@ -319,7 +319,8 @@ class GaitPlanner:
             if not self.sticks.any_lifted_now:
                 lo, hi = self.lift_window(est, stance)
                 if math.isfinite(lo):
-                    goal = com_x if lo <= com_x <= hi else (lo if com_x < lo else hi)
+                    quarter = (hi - lo) / 4  # the middle half of the window (as the patient aims)
+                    goal = _clip(com_x, lo + quarter, hi - quarter)
                     step = p.shift_speed_m_s * self.dt_s
                     self.goal_x += _clip(goal - self.goal_x, -step, step)
             self._carry(est, m, LEGS, com_x)

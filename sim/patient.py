@@ -252,7 +252,10 @@ class Patient:
                 if other_hi - other_lo > hi - lo:
                     self.stick_queue.reverse()
                     lo, hi = other_lo, other_hi
-            target = (lo + hi) / 2 if lo > hi else clamp(float(com[0]), lo, hi)
+            # into the middle half of the window, not to its edge: a stick lifted at the edge
+            # leaves the other arm at its limit, and the body creeps on over it while the stick is up
+            quarter = (hi - lo) / 4
+            target = (lo + hi) / 2 if lo > hi else clamp(float(com[0]), lo + quarter, hi - quarter)
             if math.isfinite(target):
                 step = g.shift_speed_m_s * dt
                 self.com_target[0] += clamp(target - self.com_target[0], -step, step)
