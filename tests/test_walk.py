@@ -101,34 +101,6 @@ def test_the_noisy_patient_of_seed_39_walks_on_after_its_short_steps():
     assert min(s.length_m for s in outcome.steps) < 0.08  # the short steps this is about
 
 
-def test_a_lean_at_rest_with_the_sticks_light_presses_on_them_and_the_step_starts():
-    """Seed 0's fifth step, the controller's lean ending after 1 s without progress (its stall
-    time until 2026-12-03; with 0.5 s no lean of seeds 0-5 rests that long, 10 cycles each): the
-    lean comes to rest on the feet (the CoM over the soles, the trailing leg straight) with the
-    sticks carrying 5-10 N, below what the controller needs to swing. The patient presses on the
-    sticks (docs/SIM.md item 23) and the swing starts; before, it started 17.8 s later when sensor
-    noise lifted both sticks past the threshold."""
-    pressed = []
-
-    def on_tick(result, core, host):
-        if host.patient.lean_rest_s >= host.patient.s.stalled_lean_s:
-            pressed.append(result.tick)
-
-    # the model before issue 28's intention (stiffer ankles, a lean past the patient's goal, no floor
-    # over the stance foot, one placement every step), where seed 0's fifth lean rests on the feet
-    before = {"sim.model.joints.ankle.upper_rad": 0.40, "controller.gait.lean_past_goal_m": 0.06,
-              "controller.gait.lean_over_stance_m": 0.0, "sim.gait.lean_past_stance_m": 0.0,
-              "sim.patient.intention.regime": "steady", "sim.patient.intention.reference": "com", "sim.patient.intention.ahead_m": 0.35}
-    waiting = with_overrides(BASE, {**before, "controller.gait.lean_stall_s": 1.0, "controller.gait.lean_start_s": 1.0})
-    policy, _ = factory.step_policy(waiting.controller, fixed_m=0.14)  # about the steps of the compensation then
-    outcome = walk(waiting, cycles=3, seed=0, mode="sagittal", on_tick=on_tick, policy=policy)
-    assert_walked(outcome, 3)
-    assert pressed, "no lean came to rest: the case this test is about did not happen"
-    press_step = next(s for s in outcome.steps if s.start_tick <= pressed[0] < s.swing_tick)
-    assert (press_step.swing_tick - pressed[0]) * TICK_MS / 1000 < 1.0  # pressing loads the sticks at once
-    assert max(s.swing_tick - s.start_tick for s in outcome.steps) * TICK_MS / 1000 < 10.0
-
-
 def test_a_walk_is_deterministic_for_its_seed(walked, one_cycle):
     outcome, _, _ = walked
     # The same seed: the same walk, step for step and tick for tick (here: the one-cycle walk is
