@@ -23,7 +23,6 @@ from controller.patients import load_patient, restore_learner
 from controller.policy import StepRecord
 from controller.telemetry import FIELDS, SCHEMA_VERSION, TelemetryLog, read_log
 from protocol.enums import GaitState
-from protocol.catalog import TICK_MS
 from tools.cli import main
 from tools.pipeline import WalkOutcome, walk
 
