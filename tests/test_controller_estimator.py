@@ -44,7 +44,7 @@ def truth(walker: Walker, world: World, threshold_n: float = 20.0):
         return to_heading @ (np.asarray(p) - origin)
 
     com = h(walker.kin.com)
-    ankles = np.array([h(walker.kin.joint_origin[walker.ankle_idx[s]]) for s in "lr"])
+    ankles = np.array([h(walker.kin.joint_origin[walker.patient.ankle_idx[s]]) for s in "lr"])
     tips = np.array([h(walker.tip_point(s)) for s in "lr"])
     feet = [world.contact_normal_force(f"foot_{s}") > threshold_n for s in "lr"]
     sticks = [world.contact_normal_force(f"forearm_{s}") > threshold_n for s in "lr"]
