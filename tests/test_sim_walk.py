@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 
 import numpy as np
 import pytest
@@ -138,25 +139,25 @@ def test_a_steady_patient_means_the_same_placement_every_step():
 
 
 def test_a_stick_goal_beyond_the_arms_reach_is_clamped_and_counted():
-    # 0.8 m ahead of the CoM is out of reach of a straight arm and stick from the shoulder
+    # 0.8 m ahead of the front ankle is out of the arm's reach (elbow at stick_reach_elbow_rad)
     cfg = _with_intention(ahead_m=0.8)
     with World(cfg) as world:
         world.place(initial_pose(SIM))  # standing with the sticks where they usually are
         walker = Walker(world, cfg, gait_settings(cfg), np.random.default_rng(0))
         walker.start()
-        walker._next_step.intention_m = walker.intention.next_m()
-        start = walker.tip_point("l")
-        goal = walker._stick_goal("l", start)
-        shoulder_reach = sum(walker.body.arm_reach_m)
-        assert walker.clamps == {"reach": 1, "advance": 0} and walker._next_step.clamped == 1
-        assert goal[0] < walker.kin.com[0] + 0.8 and goal[0] > start[0]
-        origin, rot = world.link_frame("trunk")
-        shoulder = origin + rot @ np.array([0.0, walker.body.shoulder_half_width_m, walker.body.shoulder_above_hip_m])
+        p = walker.patient
+        p.plan.intention = p.intention.next()
+        start = p.tip_point("l")
+        goal = p._stick_goal("l", start)
+        assert p.clamps == {"reach": 1, "advance": 0} and p.plan.clamped == 1
+        assert start[0] < goal[0] < float(p.ankle_xy(p.front_foot())[0]) + 0.8
+        upper, lower = walker.body.arm_reach_m
+        reach = math.sqrt(upper**2 + lower**2 + 2 * upper * lower * math.cos(cfg.patient.stick_reach_elbow_rad))
         tip = goal + np.array([0.0, 0.0, cfg.model.sticks.tip_radius_m])
-        assert np.linalg.norm(tip - shoulder) == pytest.approx(shoulder_reach - cfg.patient.stick_reach_margin_m, abs=1e-6)
-        walker._next_step.intention_m = -0.5  # behind where the stick stands: it still moves on
-        assert walker._stick_goal("l", start)[0] == pytest.approx(start[0] + cfg.patient.stick_min_advance_m)
-        assert walker.clamps == {"reach": 1, "advance": 1}
+        assert np.linalg.norm(tip - p.shoulder("l")) == pytest.approx(reach, abs=1e-6)
+        p.plan.intention = dataclasses.replace(p.plan.intention, ahead_m=-0.5)  # behind where the stick stands: it still moves on
+        assert p._stick_goal("l", start)[0] == pytest.approx(start[0] + cfg.patient.stick_min_advance_m)
+        assert p.clamps == {"reach": 1, "advance": 1}
 
 
 @pytest.mark.parametrize(("mode", "directions"), [("full3d", {"lateral"}), ("sagittal", {"forward", "backward"})])
