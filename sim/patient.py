@@ -381,8 +381,10 @@ class Patient:
                 axis = (shoulder - tip) / np.linalg.norm(shoulder - tip)
                 cost = STICK_COST * (1.0 + 400.0 * (self.unloading[t] / g.unload_time_s) ** 2) if t in self.unloading else STICK_COST
                 # in a swing both sticks stay pressed down as when it started: the one the balance
-                # would spare lifts off its tip and the body loses a support it relies on
-                min_n = g.swing_trigger_stick_n if self.phase is Phase.SWING else None
+                # would spare lifts off its tip and the body loses a support it relies on; in the
+                # lean both stay planted (stick_planted_n: with 0 the spared one unloads as the swing
+                # starts, before the patient feels it)
+                min_n = g.swing_trigger_stick_n if self.phase is Phase.SWING else (g.stick_planted_n if self.phase is Phase.LEAN else None)
                 contacts.append(Contact(f"tip_{t}", self.forearm_idx[t], tip, cost, axis=axis, spread=g.strut_spread, min_n=min_n))
         wrench = self.wrench()
         wrench[:2] += self.push
