@@ -15,13 +15,11 @@ trunk's heading (its yaw removed), so the ratio needs no global position. Per ti
 * the support polygon is the pivot polygon of the loaded contacts (a passive ankle is a pin: its
   pivot, widened by half the sole across the heading, and the loaded tips), as the simulation's
   ground truth defines it; X_CoM/X_SP is the CoM's place between its rear and front extent;
-* at a swing's start (not every tick), :meth:`StateEstimator.planted_ratio`, the same between the
-  rear-most and front-most of both ankles and both tips whatever they carry (the loaded support
-  flips as a stick's load crosses its threshold, and with it the ratio, by up to 1), and
-  :meth:`StateEstimator.stance_ratio`, the step-length compensation's input:
-  the same over the support that carries the swing, the stance ankle and both tips (the swing foot
-  is about to leave the floor). The patient's lean follows where it placed the sticks, and this is
-  the ratio that sees it: over both feet the rear foot dilutes it (docs/SIM.md item 24).
+* at a swing's start (not every tick), :meth:`StateEstimator.stance_ratio`, the step-length
+  compensation's input, as SPEC defines it: the CoM's place along the walking direction, at its
+  lateral place, between the rear and the front edge of the swing's support polygon (the stance
+  sole, heel to toe, and both tips, whatever they carry: a stick's load crosses its threshold as
+  the swing starts); :meth:`StateEstimator.planted_ratio`, the same over both soles and both tips.
 """
 
 from __future__ import annotations
@@ -30,6 +28,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from controller.support import convex_hull, window_on_line
 
 SIDES = ("l", "r")
 Vec3 = tuple[float, float, float] | list[float]
@@ -168,13 +168,22 @@ class StateEstimator:
                         (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]), np.array(axes))
 
     def stance_ratio(self, est: Estimate, stance: int) -> float:
-        """X_CoM/X_SP over the support of a swing of the other leg: between the rear-most and the
-        front-most of leg ``stance``'s ankle (0 left, 1 right) and both stick tips."""
-        return self.fore_aft_ratio(float(est.com[0]), [float(est.ankles[stance][0]), *est.tips[:, 0].tolist()])
+        """X_CoM/X_SP over the support of a swing of the other leg (SPEC): where the CoM lies along
+        the walking direction, at its lateral place, between the rear and the front edge of the
+        polygon of leg ``stance``'s sole (0 left, 1 right) and both stick tips; nan where that line
+        crosses less than ``min_support_m`` of it."""
+        return self._ratio_on_line(est.com, [est.ankles[stance]], est.tips)
 
     def planted_ratio(self, est: Estimate) -> float:
-        """X_CoM/X_SP between the rear-most and the front-most of both ankles and both stick tips."""
-        return self.fore_aft_ratio(float(est.com[0]), [*est.ankles[:, 0].tolist(), *est.tips[:, 0].tolist()])
+        """:meth:`stance_ratio` over both soles and both stick tips."""
+        return self._ratio_on_line(est.com, list(est.ankles), est.tips)
+
+    def _ratio_on_line(self, com, ankles, tips) -> float:
+        b = self.body
+        corners = [(float(a[0]) + dx, float(a[1]) + dy) for a in ankles
+                   for dx in (-b.foot_heel_m, b.foot_toe_m) for dy in (-b.foot_half_width_m, b.foot_half_width_m)]
+        rear, front = window_on_line(convex_hull(corners + [(float(t[0]), float(t[1])) for t in tips]), float(com[1]), 0.0)
+        return (float(com[0]) - rear) / (front - rear) if front - rear >= b.min_support_m else math.nan
 
     def fore_aft_ratio(self, com_x: float, xs: list[float]) -> float:
         """The CoM's place between the rear-most and the front-most of ``xs``; nan for a support

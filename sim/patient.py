@@ -39,7 +39,7 @@ from sim.kinematics import Kinematics
 from sim.linalg import clamp, minimum_jerk
 from sim.model import arm_ik
 from sim.sensors import Reading, rpy_from_matrix
-from sim.truth import convex_hull_2d, pivot_polygon, stability_margin
+from sim.truth import convex_hull_2d, extent_on_line, pivot_polygon, stability_margin
 from sim.world import GRAVITY, World
 
 SIDES = ("l", "r")
@@ -100,6 +100,7 @@ class Patient:
         self.plan = StepPlan()
         self.clamps = {"reach": 0, "advance": 0}  # stick goals clamped, by reason, over the walk
         self.last = BalanceResult()
+        self.last_landed: str | None = None
         self.push = np.zeros(2)  # N: how much harder the patient pushes toward a CoM target it does not reach
 
     # -- geometry -----------------------------------------------------------------------------
@@ -119,8 +120,10 @@ class Patient:
         return origin + rot @ np.array([0.0, sign * self.body.shoulder_half_width_m, self.body.shoulder_above_hip_m])
 
     def front_foot(self) -> str:
-        """The foot ahead: the stance foot of the next swing."""
-        return max(SIDES, key=lambda s: self.ankle_xy(s)[0])
+        """The stance foot of the next swing: the one that landed last (the exoskeleton alternates
+        its legs, whether or not that step got ahead of the other foot); before the first swing,
+        the foot ahead."""
+        return self.last_landed or max(SIDES, key=lambda s: self.ankle_xy(s)[0])
 
     def support_margin(self, tips: list[str] | None = None) -> float:
         """Static margin of the CoM over the stance ankles (across the soles' width) and ``tips``
@@ -215,19 +218,25 @@ class Patient:
         self.plan.placed_ahead_m = ahead if math.isnan(placed) else (placed + ahead) / 2
         return np.array([x, y, 0.0])
 
+    def swing_support(self, stance: str) -> np.ndarray:
+        """The points of the support polygon of a swing over leg ``stance``: its sole (heel to toe,
+        across its width) and both stick tips."""
+        f = self.cfg.model.foot
+        x, y = self.ankle_xy(stance)
+        sole = [(x + dx, y + dy) for dx in (-f.heel_back_m, f.toe_front_m) for dy in (-f.half_width_m, f.half_width_m)]
+        return np.array(sole + [tuple(self.tip_point(s)[:2]) for s in SIDES])
+
     def _lean_goal(self) -> float:
-        """The CoM's x at the intended X_CoM/X_SP of the swing's support, the front foot's heel to
-        the tips' line where the CoM crosses it, midway between them (within
-        ``lean_x_min``..``lean_x_max``): with the tips staggered (the four-point gait) a lean
-        toward the front one would pass the other."""
+        """The CoM's x at the intended X_CoM/X_SP of the swing's support (SPEC: along the walking
+        direction at the CoM's lateral place, from the front foot's heel to the tips' line), within
+        ``lean_x_min``..``lean_x_max`` and no farther than the arms hold in the swing."""
         g = self.g
+        rear, front = extent_on_line(self.swing_support(self.front_foot()), self.kin.com[:2])
         ankle = float(self.ankle_xy(self.front_foot())[0])
-        heel = ankle - self.cfg.model.foot.heel_back_m
-        tips = float(np.mean([self.tip_point(s)[0] for s in SIDES]))
-        # never farther than its arms hold in the swing: the sticks' share of the weight over the
-        # stance ankle and the tips (lever rule) at most stick_force_comfort_n on each
+        # the sticks' share of the weight over the stance ankle and the tips (lever rule) at most
+        # stick_force_comfort_n on each
         share = min(1.0, 2.0 * g.stick_force_comfort_n / (self.world.total_mass * GRAVITY))
-        return min(heel + clamp(self.plan.intention.lean_x, g.lean_x_min, g.lean_x_max) * (tips - heel), ankle + share * (tips - ankle))
+        return min(rear + clamp(self.plan.intention.lean_x, g.lean_x_min, g.lean_x_max) * (front - rear), ankle + share * (front - ankle))
 
     def next_lift_window(self) -> tuple[float, float]:
         """:meth:`lift_window` of the stick (or sticks) to lift next."""
@@ -331,6 +340,7 @@ class Patient:
         """A foot is down again. The patient takes the CoM target from where the landing left it
         (often ahead of the front foot, on the sticks) and starts the next step's stick moves."""
         self.stance[leg] = True
+        self.last_landed = leg
         self.com_target = self.kin.com[:2].copy()
         self.plan = StepPlan()
         self._start_stick_moves()

@@ -28,6 +28,7 @@ __all__ = [
     "stability_margin",
     "fore_aft_ratio",
     "fore_aft_ratio_at_lateral",
+    "extent_on_line",
     "radial_ratio",
     "com_of_links",
     "FallCriteria",
@@ -281,9 +282,19 @@ def fore_aft_ratio_at_lateral(polygon, point, heading=(1.0, 0.0)) -> float:
         0 at the rear crossing, 1 at the front crossing, < 0 or > 1 outside. ``nan`` when
         the line misses the polygon or only touches it in one point.
     """
+    p, h = _vec(point, 2, "point"), _unit(heading)
+    rear, front = extent_on_line(polygon, p, h)
+    if not front - rear > _REL_EPS * max(1.0, abs(rear), abs(front)):
+        return math.nan
+    return (float(p @ h) - rear) / (front - rear)
+
+
+def extent_on_line(polygon, point, heading=(1.0, 0.0)) -> tuple[float, float]:
+    """(rear, front): where the line through ``point`` along ``heading`` enters and leaves the
+    convex hull of ``polygon``, as positions along the heading; (nan, nan) where it misses it."""
     hull, p, h = convex_hull_2d(polygon), _vec(point, 2, "point"), _unit(heading)
     if len(hull) == 0:
-        return math.nan
+        return math.nan, math.nan
     lateral = np.array([-h[1], h[0]])
     d = (hull - p) @ lateral  # signed lateral offset of each vertex from the line
     s = hull @ h  # position of each vertex along the heading
@@ -291,11 +302,8 @@ def fore_aft_ratio_at_lateral(polygon, point, heading=(1.0, 0.0)) -> float:
     crossing = np.sign(d) * np.sign(d2) < 0.0  # signs, not d * d2: that product underflows for tiny offsets
     hits = np.concatenate([s[d == 0.0], (s + d / np.where(crossing, d - d2, 1.0) * (s2 - s))[crossing]])
     if len(hits) == 0:
-        return math.nan
-    rear, front = float(hits.min()), float(hits.max())
-    if front - rear <= _REL_EPS * max(1.0, abs(rear), abs(front)):
-        return math.nan
-    return (float(p @ h) - rear) / (front - rear)
+        return math.nan, math.nan
+    return float(hits.min()), float(hits.max())
 
 
 def radial_ratio(polygon, point) -> float:

@@ -24,7 +24,7 @@ from sim.model import build_body
 from sim.patient import OTHER, SIDES, Patient, Phase, StepPlan
 from sim.scripted_gait import ScriptedGait
 from sim.sensors import Reading, Sensors, rpy_from_matrix
-from sim.truth import FallCriteria, fore_aft_ratio, pivot_polygon, support_polygon
+from sim.truth import FallCriteria, fore_aft_ratio, fore_aft_ratio_at_lateral, pivot_polygon
 from sim.world import StancePose, World
 
 __all__ = ["OTHER", "SIDES", "Phase", "StepRecord", "WalkResult", "Walker", "gait_settings", "initial_pose", "walk"]
@@ -54,8 +54,7 @@ class StepRecord:
     samples: int = 0
     min_margin_m: float = math.inf
     landed: bool = False
-    x_ratio: float = math.nan  # X_CoM/X_SP at the swing's start over the stance foot and the tips (heel to tips)
-    x_ratio_ankle: float = math.nan  # the same from the stance ankle (the pivot polygon)
+    x_ratio: float = math.nan  # X_CoM/X_SP at the swing's start (Walker.swing_ratio)
     intention_m: float = math.nan  # the patient's intended stick placement ahead of its reference (sim.intention)
     lean_x: float = math.nan  # the X_CoM/X_SP the patient meant to lean to
     placed_ahead_m: float = math.nan  # where its sticks went: their mean goal ahead of the intention's reference
@@ -169,7 +168,7 @@ class Walker:
                                      clamped=plan.clamped)
         if plan.intention is not None:
             record.intention_m, record.lean_x = plan.intention.ahead_m, plan.intention.lean_x
-        record.x_ratio, record.x_ratio_ankle = self.swing_ratios(OTHER[leg])
+        record.x_ratio = self.swing_ratio(OTHER[leg])
         self.steps.append(record)
         self.swing_leg = leg
         self.patient.swing_started(leg)
@@ -181,15 +180,9 @@ class Walker:
         self.swing_leg, self.next_swing = None, OTHER[leg]
         self.patient.landed(leg)
 
-    def swing_ratios(self, stance: str) -> tuple[float, float]:
-        """X_CoM/X_SP over the swing's support (the stance foot and the planted tips): from the stance
-        heel (SPEC's: the polygon's rear edge is the sole's) and from the stance ankle (the pivot)."""
-        p = self.patient
-        tips = np.array([p.tip_point(s)[:2] for s in SIDES if p.planted[s]]).reshape(-1, 2)
-        ankle = p.ankle_xy(stance)
-        heel = ankle - np.array([self.cfg.model.foot.heel_back_m, 0.0])
-        com = self.kin.com[:2]
-        return fore_aft_ratio(support_polygon(np.vstack([heel, tips])), com), fore_aft_ratio(pivot_polygon(ankle[None], tips), com)
+    def swing_ratio(self, stance: str) -> float:
+        """X_CoM/X_SP over the swing's support (SPEC; :meth:`sim.patient.Patient.swing_support`)."""
+        return fore_aft_ratio_at_lateral(self.patient.swing_support(stance), self.kin.com[:2])
 
     def _sense_steps(self, reading: Reading) -> None:
         """The patient's view of a step the exoskeleton makes: a foot that stays unloaded for
