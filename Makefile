@@ -1,5 +1,6 @@
 # Quick start: `make demo` (set up and run the main job) and `make test` (set up and run every test).
-# Both create .venv and install what they need; as root they also apt-get install
+# Both create .venv and install the project with every extra (sim, view, cluster, test; `pip install .`
+# alone is the controller-only core: docs/DEPLOY.md); as root they also apt-get install
 # user-mode-linux, kmod and can-utils when missing (the vcan sandbox and the CAN peer tools), and
 # chromium (the live view's browser tests drive it with playwright).
 
@@ -18,7 +19,7 @@ $(STAMP): pyproject.toml
 	@test -n "$(PYTHON)" || { echo "make: no python3 found (Python 3.11 or newer needed)"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,cluster]'
+	$(PY) -m pip install --quiet -e '.[sim,view,cluster,test]'
 	@touch $(STAMP)
 
 # The vcan sandbox (user-mode Linux + kmod), can-utils (candump, canplayer, cangen) and chromium.
@@ -46,10 +47,12 @@ test: venv system-deps
 	$(PY) -m pytest -m realtime -p no:cacheprovider --durations=8
 	tools/vcan-run -- $(PY) -m pytest -m vcan -p no:cacheprovider --durations=8
 
-# Regenerate the protocol documentation from the DBC (a test fails when it is stale), and the live
-# view's picture in the README: a recorded two-cycle walk played to the page in a headless chromium.
+# Regenerate the protocol documentation from the DBC and the generated blocks of docs/FIRMWARE.md and
+# docs/TRACE.md (tools/docgen.py; a test fails when any is stale), and the live view's picture in the
+# README: a recorded two-cycle walk played to the page in a headless chromium.
 docs: venv system-deps
 	$(AIDER) protocol --markdown > docs/PROTOCOL.md
+	$(PY) -m tools.docgen
 	mkdir -p build
 	$(AIDER) trace record build/view-walk.log --walk 2 --seed 0 --overwrite
 	$(AIDER) view --trace build/view-walk.log --speed 4 --port 0 --screenshot docs/view.png
@@ -59,6 +62,7 @@ docs: venv system-deps
 perf: venv system-deps
 	$(AIDER) bench all --out docs/perf
 	$(AIDER) bench table docs/perf --update docs/PERFORMANCE.md
+	$(PY) -m tools.docgen --block trace-bench docs/TRACE.md
 
 clean:
 	rm -rf $(VENV) build .pytest_cache .hypothesis

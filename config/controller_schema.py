@@ -270,7 +270,7 @@ class ControllerConfig:
     gait: GaitConfig = field_spec(doc="The legs through the gait cycle.")
     balance: BalanceConfig = field_spec(doc="The stance legs' torque feed-forward.")
     compensation: CompensationConfig = field_spec(doc="The step-length compensation's theta without a patient file.")
-    patients_dir: str = field_spec(doc="Directory of the learned parameters per patient, <patients_dir>/<NAME>.json (relative: to the working directory).")
+    patients_dir: str = field_spec(doc="Directory of the learned parameters per patient, <patients_dir>/<NAME>.json (relative: to the folder of the configuration file).")
 
     def validate(self) -> None:
         if self.safety.hold_torque_nm > self.envelope.max_torque_nm:

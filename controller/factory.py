@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -72,12 +74,14 @@ def step_policy(
     * ``learn``: online PI² from the patient's stored learner (or a new one at the configured
       start), its file rewritten after every roll-out when a ``patient`` is named (so a restart
       loses no finished roll-out);
-    * otherwise the compensation with the patient's learned theta, or the configured one.
+    * otherwise the compensation with the patient's learned theta, or the configured one without
+      ``patient``; a named patient without a file is a :class:`PatientError` naming the path (only
+      learning creates a patient's file).
     """
     from controller.patients import PatientError, PatientSaver, load_patient, patient_path, restore_learner
 
     bounds = step_bounds(cfg)
-    directory = patients_dir if patients_dir is not None else cfg.patients_dir
+    directory = patients_dir if patients_dir is not None else os.path.expanduser(cfg.patients_dir)
     if fixed_m is not None:
         if learn:
             raise PatientError("a fixed step length cannot be learned: give --fixed-step or --learn, not both")
@@ -87,6 +91,9 @@ def step_policy(
     c = cfg.learning
     record = load_patient(directory, patient, lower=(c.alpha_min, c.xhat_min), upper=(c.alpha_max, c.xhat_max)) if patient else None
     if not learn:
+        if patient and record is None:  # a typo or another folder must never walk a patient on the defaults
+            raise PatientError(f"{patient_path(directory, patient)}: no such patient file (--patient {patient}); check the "
+                               "name and the folder (--patients-dir, controller.patients_dir), or create it with --learn")
         theta = record.theta if record is not None else (cfg.compensation.alpha, cfg.compensation.xhat_com)
         return StepPolicy(bounds, theta=theta), None
     rng = rng if rng is not None else np.random.default_rng()

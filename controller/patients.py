@@ -15,13 +15,13 @@ import json
 import math
 import os
 import re
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from config.files import OutputError, write_text
 from config.loader import AiderError
 from controller.pi2 import LearnerError, Pi2Learner
 
@@ -103,18 +103,11 @@ def _write(path: Path, theta: list[float], learner_state: dict[str, Any] | None,
     text = json.dumps(data, indent=1, allow_nan=False)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                f.write(text + "\n")
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        write_text(path, text + "\n")
     except OSError as exc:
         raise PatientError(f"{path}: cannot write the patient file ({exc})") from None
+    except OutputError as exc:
+        raise PatientError(f"cannot write the patient file: {exc}") from None
 
 
 class PatientSaver:

@@ -10,13 +10,13 @@ from. Loading checks both, so a changed configuration can never run with stale w
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from config.controller_schema import ControllerConfig
+from config.files import write_text
 from config.loader import AiderError
 from controller.demonstration import demonstration_hash, swing_demonstration
 from controller.dmp import DmpParams, DmpWeights, fit
@@ -58,9 +58,7 @@ def save_swing(cfg: ControllerConfig, weights: DmpWeights, path: Path = WEIGHTS_
     """Write the weights with the identity of what they were fitted to (atomically)."""
     data = dict(_identity(cfg), tau_s=weights.tau_s, x0=weights.x0.tolist(), g=weights.g.tolist(),
                 weights=weights.weights.tolist())
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data, indent=1) + "\n")
-    os.replace(tmp, path)
+    write_text(path, json.dumps(data, indent=1) + "\n")
     return path
 
 

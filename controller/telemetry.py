@@ -6,13 +6,21 @@ writer thread drains it to the file. When the writer falls behind (slow disk, fu
 oldest records are dropped and counted, and a write error stops writing (counted and reported at
 ``close``) instead of stopping the loop. The first line of the file is the schema: field names,
 units and the schema version, so a log can be read without this code.
+
+A log is never truncated: an existing non-empty file at the path (the log of a run that crashed
+and was restarted with the same ``--log``) is first moved aside to a dated name beside it,
+``NAME.<UTC of its last modification>.jsonl`` (``NAME.20261207T054200Z.jsonl``, ``-1``, ``-2``...
+when taken; never over another file), and the new run writes a fresh file at the path
+(:attr:`TelemetryLog.previous` says where the old one went).
 """
 
 from __future__ import annotations
 
 import collections
+import datetime
 import json
 import math
+import os
 import threading
 from pathlib import Path
 from typing import Any
@@ -48,6 +56,34 @@ class TelemetryError(AiderError):
     """A telemetry log that cannot be created (one line, naming the file)."""
 
 
+def move_aside(path: Path) -> Path | None:
+    """Move an existing non-empty file at ``path`` to ``NAME.<UTC mtime>.jsonl`` beside it (with
+    ``-N`` when that name is taken; never over another file); the new name, or None when there was
+    nothing to keep. An :class:`OSError` when it cannot be moved."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        return None
+    if not path.is_file() or st.st_size == 0:
+        return None
+    stamp = datetime.datetime.fromtimestamp(st.st_mtime, datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    suffix = path.suffix or ".jsonl"
+    for n in range(10_000):
+        target = path.with_name(f"{path.stem}.{stamp}{'' if n == 0 else f'-{n}'}{suffix}")
+        try:
+            os.link(path, target)  # fails when the name is taken: never overwrites
+        except FileExistsError:
+            continue
+        except OSError:  # no hard links on this file system: a checked rename
+            if target.exists():
+                continue
+            os.rename(path, target)
+            return target
+        os.unlink(path)
+        return target
+    raise FileExistsError(f"{path}: every dated name for the previous log is taken")
+
+
 def _clean(value: Any) -> Any:
     """JSON-safe: numpy to lists, non-finite floats to null."""
     if hasattr(value, "tolist"):
@@ -70,10 +106,13 @@ class TelemetryLog:
         self.written = 0
         self.dropped = 0
         self.error: str | None = None
+        self.previous: Path | None = None  # where an existing log at the path was moved (never truncated)
         schema = {"schema": "aider-exo controller telemetry", "version": SCHEMA_VERSION,
                   "fields": {k: {"unit": u, "meaning": m} for k, (u, m) in FIELDS.items()}}
         try:
-            self._file = self.path.open("w", encoding="utf-8")
+            self.previous = move_aside(self.path)
+            # "x": a new file (an existing one was moved aside); "w" only over an empty file or a device
+            self._file = self.path.open("w" if self.path.exists() else "x", encoding="utf-8")
             self._file.write(json.dumps(schema) + "\n")
         except OSError as exc:  # a bad --log path is the user's error, not a traceback
             raise TelemetryError(f"{self.path}: cannot write the telemetry log ({exc.strerror or exc})") from None
@@ -122,7 +161,8 @@ class TelemetryLog:
             self._file.close()
         except OSError as exc:
             self.error = self.error or f"telemetry close failed: {exc}"
-        return {"path": str(self.path), "written": self.written, "dropped": self.dropped, "error": self.error}
+        return {"path": str(self.path), "written": self.written, "dropped": self.dropped, "error": self.error,
+                "previous": str(self.previous) if self.previous is not None else None}
 
 
 def read_log(path: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:

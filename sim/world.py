@@ -21,9 +21,25 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pybullet
-import pybullet_data
-from pybullet_utils.bullet_client import BulletClient
+
+
+def _import_pybullet_quietly():
+    """``import pybullet`` without the "pybullet build time" banner its C code writes to stderr
+    (file descriptor 2, which Python's redirections do not reach): a command's stderr is its own."""
+    saved, null = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 2)
+        import pybullet
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
+    return pybullet
+
+
+pybullet = _import_pybullet_quietly()
+import pybullet_data  # noqa: E402
+from pybullet_utils.bullet_client import BulletClient  # noqa: E402
 
 from config.sim_schema import SimConfig
 from sim.actuation import LAW_ROWS, Gains, JointImpedance, law_torques, spring_law

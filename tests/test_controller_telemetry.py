@@ -22,7 +22,7 @@ def test_records_follow_the_schema_line(tmp_path):
     for k in range(50):
         log.put(record(k))
     report = log.close()
-    assert report == {"path": str(tmp_path / "t.jsonl"), "written": 50, "dropped": 0, "error": None}
+    assert report == {"path": str(tmp_path / "t.jsonl"), "written": 50, "dropped": 0, "error": None, "previous": None}
     schema, records = read_log(tmp_path / "t.jsonl")
     assert schema["version"] == SCHEMA_VERSION and list(schema["fields"]) == list(FIELDS)
     assert [r["tick"] for r in records] == list(range(50))
@@ -69,3 +69,36 @@ def test_a_failing_disk_is_reported_not_raised(tmp_path):
         log.put(record(k))
     report = log.close()
     assert report["written"] == 0 and report["dropped"] == 20 and "No space left" in report["error"]
+
+
+def test_a_restart_with_the_same_log_keeps_the_first_runs_lines(tmp_path):
+    import os
+
+    path = tmp_path / "t.jsonl"
+    first = TelemetryLog(path)
+    for k in range(5):
+        first.put(record(k))
+    first.close()
+    os.utime(path, (1_796_621_000, 1_796_621_000))  # 2026-12-07T05:23:20Z
+    before = path.read_bytes()
+    second = TelemetryLog(path)  # the controller restarted with the same --log
+    second.put(record(100))
+    report = second.close()
+    moved = tmp_path / "t.20261207T052320Z.jsonl"
+    assert second.previous == moved and report["previous"] == str(moved)
+    assert moved.read_bytes() == before  # the crashed run's log, whole
+    assert [r["tick"] for r in read_log(path)[1]] == [100]
+    # a third run whose previous log has the same modification time: a -1 name, nothing overwritten
+    os.utime(path, (1_796_621_000, 1_796_621_000))
+    third = TelemetryLog(path)
+    third.close()
+    assert third.previous == tmp_path / "t.20261207T052320Z-1.jsonl"
+    assert moved.read_bytes() == before and [r["tick"] for r in read_log(third.previous)[1]] == [100]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.20261207T052320Z-1.jsonl", "t.20261207T052320Z.jsonl", "t.jsonl"]
+
+
+def test_an_empty_log_is_simply_reused(tmp_path):
+    (tmp_path / "t.jsonl").write_text("")
+    log = TelemetryLog(tmp_path / "t.jsonl")
+    log.close()
+    assert log.previous is None and [p.name for p in tmp_path.iterdir()] == ["t.jsonl"]

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -242,9 +244,10 @@ def test_step_policy_compensated_from_the_configuration(tmp_path):
     policy, saver = factory.step_policy(BASE.controller)
     c = BASE.controller.compensation
     assert policy.mode == "compensated" and saver is None and policy.theta == (c.alpha, c.xhat_com)
-    # a patient without a file yet walks with the configured theta, and gets no file
-    policy, saver = factory.step_policy(BASE.controller, patient="new", patients_dir=str(tmp_path))
-    assert policy.theta == (c.alpha, c.xhat_com) and saver is None and list(tmp_path.iterdir()) == []
+    # a patient without a file is an error naming the path looked in (never the defaults), and gets no file
+    with pytest.raises(PatientError, match=f"{tmp_path / 'new.json'}: no such patient file"):
+        factory.step_policy(BASE.controller, patient="new", patients_dir=str(tmp_path))
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_step_policy_compensated_from_the_patients_file(tmp_path):
@@ -254,8 +257,8 @@ def test_step_policy_compensated_from_the_patients_file(tmp_path):
 
 
 def test_step_policy_uses_the_configured_patients_dir(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)  # controller.patients_dir is relative: to the working directory
-    save_patient(tmp_path / BASE.controller.patients_dir, "anna", (-2.0, 0.65), None)
+    monkeypatch.setenv("HOME", str(tmp_path))  # controller.patients_dir is under the user's home
+    save_patient(Path(os.path.expanduser(BASE.controller.patients_dir)), "anna", (-2.0, 0.65), None)
     policy, _ = factory.step_policy(BASE.controller, patient="anna")
     assert policy.theta == (-2.0, 0.65)
 

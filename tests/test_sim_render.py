@@ -12,12 +12,12 @@ import pytest
 from PIL import Image
 from pybullet_utils.bullet_client import BulletClient
 
+from config.files import atomic_write
 from sim.render import (
     ER_NO_SEGMENTATION_MASK,
     ER_TINY_RENDERER,
     Camera,
     Recorder,
-    atomic_write,
     encode_png,
     hstack_with_separator,
     pick_evenly,

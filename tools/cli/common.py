@@ -6,15 +6,48 @@ import argparse
 import json
 import signal
 import sys
-from typing import Any
+from pathlib import Path
+from collections.abc import Callable
+from typing import Any, NoReturn
 
 from config import Config, ConfigError, default_config_path, load_config, with_overrides
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """A parser whose every error is one line on stderr, ``aider-exo CMD: error: ... (see --help)``,
+    with exit status 2 (argparse's own prints the usage block first). Subparsers inherit the class."""
+
+    def error(self, message: str) -> NoReturn:
+        text = " ".join(str(message).split())
+        self.exit(2, f"{self.prog}: error: {text} (see {self.prog} --help)\n")
+
+
+def non_empty(text: str) -> str:
+    """An argparse type: a value that is not empty (nor only blanks)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("must not be empty")
+    return text
 
 
 def add_config_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="FILE", help="YAML configuration (default: the packaged config/default.yaml)")
     parser.add_argument("--bus", choices=("socketcan", "virtual", "udp_multicast"), help="override bus.interface")
-    parser.add_argument("--channel", help="override bus.channel (vcan0, can0, a virtual bus name, or a multicast group[:port])")
+    parser.add_argument("--channel", type=non_empty,
+                        help="override bus.channel (vcan0, can0, a virtual bus name, or a multicast group[:port])")
+
+
+def config_path(args: argparse.Namespace) -> Path:
+    """The configuration file the command reads: ``--config``, or the packaged default."""
+    return Path(args.config) if getattr(args, "config", None) else default_config_path()
+
+
+def patients_folder(args: argparse.Namespace, cfg: Config) -> Path:
+    """Where ``--patient NAME`` is looked for: ``--patients-dir`` (relative: to the working
+    directory), else ``controller.patients_dir`` (relative: to the configuration file's folder)."""
+    if getattr(args, "patients_dir", None):
+        return Path(args.patients_dir).absolute()
+    configured = Path(cfg.controller.patients_dir).expanduser()
+    return configured if configured.is_absolute() else config_path(args).absolute().parent / configured
 
 
 def add_mode_option(parser: argparse.ArgumentParser, what: str = "the simulation's mode") -> None:
@@ -37,7 +70,7 @@ def load_cli_config(args: argparse.Namespace, *, needs: tuple[str, ...] = ()) ->
     """The configuration named by ``--config`` with ``--bus``/``--channel`` applied (validated);
     an optional section the command ``needs`` that the file lacks is an error naming file and key,
     raised before anything is opened."""
-    path = args.config or default_config_path()
+    path = config_path(args)
     cfg = load_config(path)
     for section in needs:
         if getattr(cfg, section) is None:
@@ -63,6 +96,32 @@ def positive_int(text: str) -> int:
     if value <= 0:
         raise argparse.ArgumentTypeError(f"{value} is not positive")
     return value
+
+
+SEED_MAX = 2**32 - 1
+
+
+def bounded(cast: Callable[[str], float], lo: float, hi: float, what: str, unit: str = "") -> Callable[[str], Any]:
+    """An argparse type: a number (``cast``: int or float) in lo..hi; ``what`` names it (its
+    ``__name__``, shown by argparse) and ``unit`` follows the bounds in the message."""
+
+    def parse(text: str) -> Any:
+        try:
+            value = cast(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if cast is int else 'a number'}") from None
+        if not lo <= value <= hi:  # NaN fails too
+            raise argparse.ArgumentTypeError(f"{value} is outside {lo}..{hi}{unit}")
+        return value
+
+    parse.__name__ = what
+    return parse
+
+
+#: a seed: numpy's seeds are unsigned 32-bit
+seed_type = bounded(int, 0, SEED_MAX, "seed")
+#: a TCP port (0: any free one)
+port = bounded(int, 0, 65535, "port")
 
 
 def positive_float(text: str) -> float:

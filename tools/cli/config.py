@@ -36,9 +36,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run_check(args: argparse.Namespace) -> int:
-    from config import SCHEMA_VERSION, config_hash, load_config
+    from config import SCHEMA_VERSION, ConfigError, config_hash, load_config
 
-    cfg = load_config(args.file)
+    try:
+        cfg = load_config(args.file)
+    except ConfigError as exc:
+        if args.json:  # the answer on stdout as well: a JSON object saying what is wrong (the one line on stderr too)
+            print_json({"file": str(args.file), "valid": False, "error": str(exc), "key": exc.key, "line": exc.line})
+        raise
     sections = {name: getattr(cfg, name) is not None for name in ("protocol", "controller", "sim", "nodes")}
     result = {"file": str(args.file), "valid": True, "schema_version": SCHEMA_VERSION, "hash": config_hash(cfg),
               "bus": f"{cfg.bus.interface}:{cfg.bus.channel}", "sections": sections}

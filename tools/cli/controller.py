@@ -7,7 +7,7 @@ import sys
 from typing import Any
 
 from protocol.enums import DriveState, GaitState
-from tools.cli.common import StopSignals, add_config_options, load_cli_config, positive_float, positive_int, print_json
+from tools.cli.common import StopSignals, add_config_options, config_path, load_cli_config, patients_folder, positive_float, positive_int, print_json
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -38,9 +38,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "walks on its own (add --walk or --cycles)")
     p.add_argument("--fixed-step", type=positive_float, metavar="M", help="every step this long: no compensation (the baseline)")
     p.add_argument("--learn", action="store_true", help="learn the compensation online with PI² (saved to --patient's file)")
-    p.add_argument("--patient", metavar="NAME", help="walk with (and, learning, update) this patient's learned parameters")
-    p.add_argument("--patients-dir", metavar="DIR", help="folder of the patient files (default: controller.patients_dir)")
-    p.add_argument("--log", metavar="FILE", help="per-tick telemetry as JSON lines (the first line is the schema)")
+    p.add_argument("--patient", metavar="NAME", help="walk with (and, learning, update) this patient's learned parameters "
+                   "(no such file: an error, unless --learn creates it)")
+    p.add_argument("--patients-dir", metavar="DIR", help="folder of the patient files (default: controller.patients_dir, relative: to the configuration file's folder)")
+    p.add_argument("--log", metavar="FILE", help="per-tick telemetry as JSON lines (the first line is the schema); an existing log "
+                   "is first moved aside to FILE's name dated with its last change (NAME.20261207T054200Z.jsonl), never truncated")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout at exit")
     p.add_argument("--quiet", action="store_true", help="no status lines")
     p.set_defaults(func=run)
@@ -70,13 +72,20 @@ def run(args: argparse.Namespace) -> int:
     from protocol.clock import MonotonicClock
 
     cfg = load_cli_config(args, needs=("controller",))
+    from config.files import check_output
     from controller.factory import step_policy
+    from controller.patients import patient_path
 
-    # Everything that can be wrong with the configuration or a patient file fails here, before the bus opens.
+    # Everything that can be wrong with the configuration, the log or a patient file fails here, before the bus opens.
+    if args.log:
+        check_output(args.log, inputs=[config_path(args)], option="the telemetry log --log")
+    patients = patients_folder(args, cfg)
     policy, saver = step_policy(cfg.controller, fixed_m=args.fixed_step, learn=args.learn, patient=args.patient,
-                                patients_dir=args.patients_dir)
+                                patients_dir=str(patients))
     if args.learn and not args.patient:
         print("aider-exo controller: warning: learning without --patient: what is learnt is not kept", file=sys.stderr)
+    if args.patient and not (args.quiet or args.json):
+        print(f"aider-exo controller: patient {args.patient}: {patient_path(patients, args.patient)}", file=sys.stderr)
     core = ControllerCore(cfg.controller, policy=policy)
     notifier = Notifier()
     rt = None
@@ -87,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             clock = MonotonicClock()
             telemetry = TelemetryLog(args.log) if args.log else None
+            if telemetry is not None and telemetry.previous is not None:  # a restart: the crashed run's log is kept
+                print(f"aider-exo controller: the previous log {args.log} was moved to {telemetry.previous}", file=sys.stderr)
             kwargs = dict(max_delta_counter=cfg.protocol.max_delta_counter, clock=clock, telemetry=telemetry)
             if args.lockstep:
                 loop: LockstepLoop = LockstepLoop(core, bus, **kwargs)

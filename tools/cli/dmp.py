@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from config import ConfigError, default_config_path, load_config
+from config.files import check_output
 from tools.cli.common import print_json
 
 
@@ -28,8 +29,10 @@ def run_fit(args: argparse.Namespace) -> int:
     cfg = load_config(args.config or default_config_path())
     if cfg.controller is None:
         raise ConfigError("section required by the swing generator", key="controller")
+    out = args.out or WEIGHTS_PATH
+    check_output(out, inputs=[args.config or default_config_path()], option="--out")  # before the fit
     weights = fit_swing(cfg.controller)
-    path = save_swing(cfg.controller, weights, args.out or WEIGHTS_PATH)
+    path = save_swing(cfg.controller, weights, out)
     # Reproduction error of the fitted DMP on its own demonstration, ticked as the controller will.
     times, xz = demonstration(cfg.controller)
     dmp = Dmp(weights)

@@ -8,7 +8,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from tools.cli.common import StopSignals, add_config_options, add_mode_option, load_cli_config, positive_int, print_json, sim_mode
+from tools.cli.common import StopSignals, add_config_options, add_mode_option, load_cli_config, positive_int, print_json, sim_mode, seed_type
 
 DEFAULT_OUT = Path("build/experiment")
 
@@ -44,7 +44,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         sp.add_argument("--quiet", action="store_true", help="no progress bar")
 
     def seeds(sp: argparse.ArgumentParser) -> None:
-        sp.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+        sp.add_argument("--seed", type=seed_type, default=0, help="first seed (default 0)")
         sp.add_argument("--seeds", type=positive_int, default=1, metavar="N", help="learning runs per start: seeds S..S+N-1 (default 1)")
         sp.add_argument("--updates", type=positive_int, default=15, help="PI² updates per learning run (default 15)")
 
@@ -57,14 +57,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
     cp = xsub.add_parser("compare", help="the adaptive gait against fixed step lengths 0.10-0.20 m (Figs. 8, 12)")
     common(cp)
-    cp.add_argument("--seed", type=int, default=0, help="seed of the compared walks (default 0)")
+    cp.add_argument("--seed", type=seed_type, default=0, help="seed of the compared walks (default 0)")
     cp.add_argument("--theta", type=float, nargs=2, metavar=("ALPHA", "XHAT"),
                     help="the adaptive gait's theta (default: the configured controller.compensation)")
     cp.add_argument("--walks", type=positive_int, default=10, help="walks (seeds) per gait (default 10)")
     cp.set_defaults(func=run_compare)
 
     def walks_and_span(sp: argparse.ArgumentParser, walks: int, walks_help: str, lo: float, hi: float, step: str) -> None:
-        sp.add_argument("--seed", type=int, default=0, help="seed of the walks (default 0)")
+        sp.add_argument("--seed", type=seed_type, default=0, help="seed of the walks (default 0)")
         sp.add_argument("--walks", type=positive_int, default=walks, help=f"{walks_help} (default {walks})")
         sp.add_argument("--min", type=float, default=lo, dest="min_m", help=f"shortest {step}, m (default {lo})")
         sp.add_argument("--max", type=float, default=hi, dest="max_m", help=f"longest {step}, m (default {hi})")
@@ -97,7 +97,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                      "the learned theta against the patient; figures, CSV, summary.json.")
     common(pp)
     pp.add_argument("--patients", type=positive_int, default=8, metavar="N", help="patients to draw (default 8)")
-    pp.add_argument("--seed", type=int, default=0, help="the population's seed (default 0)")
+    pp.add_argument("--seed", type=seed_type, default=0, help="the population's seed (default 0)")
     pp.add_argument("--patient-file", type=Path, action="append", metavar="FILE",
                     help="a patient file (config/patients/*.yaml) instead of drawing; repeatable")
     pp.add_argument("--updates", type=positive_int, default=15, help="PI² updates per patient (default 15)")
@@ -124,6 +124,9 @@ def _plan(args: argparse.Namespace, **kw):
     args.mode = sim_mode(args, cfg)
     if args.workers < 0:
         raise ExperimentError(f"--workers must be >= 0, got {args.workers}")
+    from config.files import check_output_folder
+
+    check_output_folder(args.out, parents=True, option="--out")  # a file of that name: one line, before any walk
     if args.fresh and (args.out / "cache").exists():
         shutil.rmtree(args.out / "cache")
     if args.address and args.executor != "ray":

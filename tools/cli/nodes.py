@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from tools.cli.common import StopSignals, add_config_options, add_mode_option, load_cli_config, print_json
+from tools.cli.common import StopSignals, add_config_options, add_mode_option, config_path, load_cli_config, print_json, seed_type
 
 
 
@@ -24,7 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_config_options(p)
     p.add_argument("--lockstep", action="store_true", help="advance the physics one tick per SYNC (default: real time)")
     p.add_argument("--gui", action="store_true", help="open the PyBullet window")
-    p.add_argument("--seed", type=int, default=0, help="seed of sensor noise, the patient and fault injection (default 0)")
+    p.add_argument("--seed", type=seed_type, default=0, help="seed of sensor noise, the patient and fault injection (default 0)")
     add_mode_option(p)
     p.add_argument("--truth", metavar="FILE", help="write the simulation's ground truth after every SYNC as JSON lines "
                    "(tick, X_CoM/X_SP, fall): for tests and experiments, never sent on the bus")
@@ -44,6 +44,10 @@ def run(args: argparse.Namespace) -> int:
     from protocol.realtime import realtime_setup
 
     cfg = load_cli_config(args, needs=("sim", "nodes"))
+    if args.truth:
+        from config.files import check_output
+
+        check_output(args.truth, inputs=[config_path(args)], option="--truth")  # before the simulation loads
     if args.mode:
         cfg = with_overrides(cfg, {"sim.mode": args.mode})
     with StopSignals() as stop:

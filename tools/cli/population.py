@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tools.cli.common import positive_int, print_json
+from tools.cli.common import positive_int, print_json, seed_type
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -16,7 +16,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                     "for the same seed; patient i independent of N) and writes each as a patient file "
                                     "that aider-exo walk --virtual-patient FILE walks.")
     d.add_argument("--patients", type=positive_int, required=True, metavar="N", help="how many patients")
-    d.add_argument("--seed", type=int, default=0, help="the population's seed (default 0)")
+    d.add_argument("--seed", type=seed_type, default=0, help="the population's seed (default 0)")
     d.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder for the patient files (NAME.yaml)")
     d.add_argument("--overwrite", action="store_true", help="replace patient files that exist")
     d.add_argument("--json", action="store_true", help="print the patients as JSON")
@@ -25,17 +25,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run_draw(args: argparse.Namespace) -> int:
     from config import AiderError, config_to_dict
+    from config.files import check_output_folder, write_text
     from tools.population import draw_population, patient_yaml
 
+    if args.out.exists() and not args.out.is_dir():
+        raise AiderError(f"--out {args.out}: is a file, not a folder (the patient files go into a folder)")
     people = draw_population(args.patients, args.seed)
     paths = [args.out / f"{p.name}.yaml" for p in people]
     existing = [p for p in paths if p.exists()]
     if existing and not args.overwrite:
         raise AiderError(f"{existing[0]} exists (and {len(existing) - 1} more): give --overwrite to replace them")
-    args.out.mkdir(parents=True, exist_ok=True)
+    check_output_folder(args.out, parents=True, option="--out")
     for person, path in zip(people, paths):
-        path.write_text(f"# drawn by aider-exo population draw --patients {args.patients} --seed {args.seed}\n"
-                        + patient_yaml(person))
+        write_text(path, f"# drawn by aider-exo population draw --patients {args.patients} --seed {args.seed}\n"
+                   + patient_yaml(person))
     if args.json:
         print_json({"seed": args.seed, "files": [str(p) for p in paths], "patients": [config_to_dict(p) for p in people]})
     else:

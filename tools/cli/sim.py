@@ -15,7 +15,8 @@ import sys
 from pathlib import Path
 
 from config import ConfigError, default_config_path, load_config
-from tools.cli.common import add_mode_option, positive_int, print_json
+from config.files import check_output_folder
+from tools.cli.common import add_mode_option, bounded, positive_float, positive_int, print_json, seed_type
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -37,17 +38,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
     wk = sim_sub.add_parser("walk", help="one walk at a fixed step length")
     common(wk)
-    wk.add_argument("--length", type=float, default=0.12, help="step length in m")
-    wk.add_argument("--seed", type=int, default=0)
+    wk.add_argument("--length", type=_length, default=0.12, help="step length in m (0.02..0.5)")
+    wk.add_argument("--seed", type=seed_type, default=0)
     wk.add_argument("--cycles", type=positive_int, default=10)
     wk.add_argument("--gui", action="store_true", help="open a PyBullet window")
-    wk.add_argument("--max-time", type=float, default=120.0, metavar="S", help="simulated seconds before a walk counts as stalled")
+    wk.add_argument("--max-time", type=positive_float, default=120.0, metavar="S", help="simulated seconds before a walk counts as stalled")
     wk.set_defaults(func=run_walk)
 
     rd = sim_sub.add_parser("render", help="render one walk to a PNG strip and a GIF")
     common(rd)
-    rd.add_argument("--length", type=float, default=0.12)
-    rd.add_argument("--seed", type=int, default=0)
+    rd.add_argument("--length", type=_length, default=0.12, help="step length in m (0.02..0.5)")
+    rd.add_argument("--seed", type=seed_type, default=0)
     rd.add_argument("--cycles", type=positive_int, default=3)
     rd.add_argument("--out", type=Path, default=Path("docs"), help="output folder (default docs/)")
     rd.set_defaults(func=run_render)
@@ -62,14 +63,21 @@ def _sim_config(args: argparse.Namespace):
     return with_mode(cfg.sim, args.mode) if args.mode else cfg.sim
 
 
+#: the step lengths a fixed-step walk accepts (--length, --lengths), m
+LENGTH_MIN_M, LENGTH_MAX_M = 0.02, 0.5
+
+
 def _lengths(text: str) -> list[float]:
     try:
         values = [float(x) for x in text.split(",") if x.strip()]
     except ValueError:
         raise ConfigError(f"--lengths: {text!r} is not a comma-separated list of numbers") from None
-    if not values or any(not 0.02 <= v <= 0.5 for v in values):
-        raise ConfigError("--lengths: every step length must lie in 0.02..0.5 m")
+    if not values or any(not LENGTH_MIN_M <= v <= LENGTH_MAX_M for v in values):
+        raise ConfigError(f"--lengths: every step length must lie in {LENGTH_MIN_M}..{LENGTH_MAX_M} m")
     return values
+
+
+_length = bounded(float, LENGTH_MIN_M, LENGTH_MAX_M, "step length", " m")  # one step length, within the bounds of --lengths
 
 
 def run_sweep(args: argparse.Namespace) -> int:
@@ -125,6 +133,7 @@ def run_render(args: argparse.Namespace) -> int:
     from sim.walk import gait_settings, walk
 
     cfg = _sim_config(args)
+    check_output_folder(args.out, parents=True, option="--out")  # before the walk, not after it
     camera = Camera(target_xyz=(0.3, 0.0, 0.7), distance_m=2.8, yaw_deg=20.0, pitch_deg=-10.0, width_px=320, height_px=240)
     recorder = Recorder(every_n=5)
 
@@ -133,7 +142,6 @@ def run_render(args: argparse.Namespace) -> int:
         recorder.maybe_capture(world.client, t, camera.follow(float(base_x)))
 
     result = walk(cfg, gait_settings(cfg, step_length_m=args.length), seed=args.seed, max_steps=2 * args.cycles, on_tick=on_tick)
-    args.out.mkdir(parents=True, exist_ok=True)
     gif = recorder.save_gif(args.out / f"hhea-walk-{cfg.mode}.gif")
     strip = recorder.save_strip(args.out / f"hhea-walk-{cfg.mode}.png", 6)
     summary = dict(episode_summary(result), mode=cfg.mode, gif=str(gif), strip=str(strip), frames=len(recorder))

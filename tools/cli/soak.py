@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from tools.cli.common import add_config_options, load_cli_config, positive_float, print_json
+from tools.cli.common import add_config_options, load_cli_config, positive_float, print_json, seed_type
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -22,7 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     add_config_options(p)
     p.add_argument("--minutes", type=positive_float, default=30.0, help="simulated minutes of walking (default 30)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the faults, the patient and the sensors (default 0)")
+    p.add_argument("--seed", type=seed_type, default=0, help="seed of the faults, the patient and the sensors (default 0)")
     p.add_argument("--faults-per-min", type=positive_float, default=6.0,
                    help="random faults per simulated minute, on average (default 6)")
     p.add_argument("--json", action="store_true", help="machine-readable report on stdout")

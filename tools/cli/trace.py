@@ -1,4 +1,5 @@
-"""``aider-exo trace``: record, decode, inspect, plot, replay and re-simulate CAN traces (docs/TRACE.md)."""
+"""``aider-exo trace``: record, decode, inspect, plot, replay and re-simulate CAN traces, and read the
+controller's per-tick telemetry logs (docs/TRACE.md)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,8 @@ import sys
 from pathlib import Path
 from typing import Any, Callable
 
-from tools.cli.common import StopSignals, add_config_options, add_mode_option, load_cli_config, positive_float, positive_int, print_json, sim_mode
+from config.files import check_output
+from tools.cli.common import StopSignals, add_config_options, add_mode_option, load_cli_config, positive_float, positive_int, print_json, sim_mode, seed_type
 
 FORMATS_HELP = "traces: .log (candump -l/-L), .asc, .blf, .trc, .csv (python-can), .mf4 (with asammdf); - reads candump -L from stdin"
 
@@ -24,7 +26,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="record the lock-step pipeline (controller, nodes, simulation) walking CYCLES gait cycles in this process")
     add_mode_option(r, "--walk: the simulation's mode")
     r.add_argument("--max-time", type=positive_float, metavar="S", help="--walk: simulated seconds at most")
-    r.add_argument("--seed", type=int, help="seed of the run (--walk: of the simulation, default 0); kept in the sidecar")
+    r.add_argument("--seed", type=seed_type, help="seed of the run (--walk: of the simulation, default 0); kept in the sidecar")
     r.add_argument("--count", type=positive_int, help="stop after this many frames")
     r.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds")
     r.add_argument("--idle-timeout", type=positive_float, metavar="S", help="stop after S seconds without a frame")
@@ -74,15 +76,45 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--json", action="store_true", help="machine-readable summary")
     rp.set_defaults(func=run_replay)
 
-    rs = tsub.add_parser("resim", help="feed a recorded lock-step run's node frames to the controller; report the first divergence")
-    rs.add_argument("files", nargs="+", help="the recorded run (rotated parts in order)")
+    rs = tsub.add_parser("resim", help="feed a recorded run's node frames to the controller; report the first divergence",
+                         description="Re-simulates a recorded run (trace record --walk, or a real-time session recorded by "
+                         "aider-exo record or candump -L, in rotated files) with a fresh controller and compares what it "
+                         "sends with what the recorded controller sent (docs/TRACE.md).")
+    rs.add_argument("files", nargs="+", help="the recorded run (rotated parts in recording order; .log.part too)")
     rs.add_argument("--config", metavar="FILE", help="YAML configuration of the controller (default: the packaged one)")
     rs.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a configuration value (repeatable)")
     start = rs.add_mutually_exclusive_group()
-    start.add_argument("--request-walk-tick", type=int, metavar="TICK", help="the operator's start at this tick (default: the sidecar's)")
+    start.add_argument("--request-walk-tick", type=_walk_tick, metavar="TICK|start",
+                       help="the operator's start at this tick, or 'start': at each controller start, as controller --walk "
+                       "asks it (default: the sidecar's; without one 'start' when the recorded heartbeat shows walking)")
     start.add_argument("--no-request-walk", action="store_true", help="no operator start (a standing run)")
     rs.add_argument("--json", action="store_true", help="machine-readable output")
     rs.set_defaults(func=run_resim)
+
+    tk = tsub.add_parser("ticks", help="summarise (and plot) the controller's per-tick telemetry logs (controller --log)",
+                         description="The controller's per-tick telemetry (JSON lines, aider-exo controller --log): ticks, "
+                         "time in each state and gait part, steps, falls, faults and events by kind, the tick's work and "
+                         "lateness; several files (the logs moved aside at each restart, then the current one) in the order given.")
+    tk.add_argument("logs", nargs="+", metavar="LOG", help="telemetry log(s), .jsonl (read in the order given)")
+    tk.add_argument("--from", dest="start", type=_non_negative, metavar="S", help="from S seconds of controller time after the first record")
+    tk.add_argument("--to", dest="end", type=_non_negative, metavar="S", help="up to S seconds after the first record")
+    tk.add_argument("--plot", type=Path, metavar="OUT.png",
+                    help="also write a PNG: joint angles and setpoints, stick forces, X_CoM/X_SP, step lengths, work")
+    tk.add_argument("--title", help="--plot: the figure's title (default: the logs' names)")
+    tk.add_argument("--json", action="store_true", help="machine-readable output")
+    tk.set_defaults(func=run_ticks)
+
+
+def _walk_tick(text: str) -> int | str:
+    if text.strip().lower() == "start":
+        return "start"
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is neither a tick number nor 'start'") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text} is not a tick number (0 or more)")
+    return value
 
 
 def _loops(text: str) -> int | None:
@@ -124,6 +156,11 @@ def _input(args: argparse.Namespace, *, role: str = "all") -> Any:
     selection = Selection(nodes=tuple(args.node), messages=tuple(args.message), signals=tuple(args.signal),
                           start_s=args.start, end_s=args.end)
     return TraceInput(args.files, dbc=args.dbc, selection=selection, role=role)
+
+
+def _inputs(args: argparse.Namespace) -> list[Any]:
+    """Every file the command reads (an output must be none of them)."""
+    return [*args.files, getattr(args, "dbc", None), getattr(args, "config", None)]
 
 
 def _warn(lines: list[str]) -> None:
@@ -204,8 +241,10 @@ def run_record(args: argparse.Namespace) -> int:
 def run_decode(args: argparse.Namespace) -> int:
     from tools.trace import TraceError
     from tools.trace.decode import OK, Formatter, TraceDecoder, write_csv, write_jsonl, write_table
-    from tools.trace.files import atomic_output
+    from config.files import atomic_path
 
+    if args.output:
+        check_output(args.output, inputs=_inputs(args), option="-o")  # before reading: never over an input
     max_delta, _ = _protocol_settings(args)
     src = _input(args)
     decoder = TraceDecoder(src.codec, max_delta_counter=max_delta)
@@ -217,7 +256,7 @@ def run_decode(args: argparse.Namespace) -> int:
                                  "jsonl": lambda r, f, o, **kw: write_jsonl(r, f, o, catalog=src.catalog, **kw)}[args.format]
     if args.output:
         try:
-            with atomic_output(args.output) as tmp, tmp.open("w", encoding="utf-8", newline="") as out:
+            with atomic_path(args.output, inputs=_inputs(args)) as tmp, tmp.open("w", encoding="utf-8", newline="") as out:
                 write(rows, fmt, out)
         except OSError as exc:
             raise TraceError(f"{args.output}: cannot write ({exc})") from None
@@ -251,12 +290,13 @@ def run_plot(args: argparse.Namespace) -> int:
     from tools.trace.decode import Formatter, TraceDecoder
     from tools.trace.plot import plot_png
 
+    check_output(args.output, inputs=_inputs(args), option="-o")  # before reading: never over an input
     max_delta, _ = _protocol_settings(args)
     src = _input(args)
     decoder = TraceDecoder(src.codec, max_delta_counter=max_delta)
     fmt = Formatter(src.catalog, src.selection, labels=False)
     title = args.title or ", ".join(Path(f).name for f in args.files)
-    result = plot_png(decoder.rows(src.frames(), src.selection), fmt, args.output, title=title)
+    result = plot_png(decoder.rows(src.frames(), src.selection), fmt, args.output, title=title, inputs=_inputs(args))
     warnings = src.warnings(decoder.receiver)
     if args.json:
         print_json({**result, "input": src.report.as_dict(), "warnings": warnings})
@@ -318,10 +358,13 @@ def run_replay(args: argparse.Namespace) -> int:
 def run_resim(args: argparse.Namespace) -> int:
     from config import config_hash, default_config_path, load_config, parse_override, with_overrides
     from tools.trace import TraceError
-    from tools.trace.resim import format_text, resimulate
+    from tools.trace.reader import ReadReport, read_frames
+    from tools.trace.resim import format_text, resimulate, walked
+    from tools.trace.session import check_order
     from tools.trace.source import TraceInput
 
     src = TraceInput(args.files, stdin=False)
+    order_warnings = check_order(args.files)  # the recorder's rotated files: given out of order is an error
     cfg = load_config(args.config or default_config_path())
     given_hash = config_hash(cfg)
     if args.set:
@@ -339,11 +382,16 @@ def run_resim(args: argparse.Namespace) -> int:
         walk_tick = args.request_walk_tick
     else:
         walk_tick = ((meta.get("source") or {}).get("operator") or {}).get("request_walk_tick")
-        if walk_tick is None:
+        if walk_tick is None and walked(read_frames(args.files, ReadReport()), src.codec):
+            walk_tick = "start"  # a real-time session: the controller asks the start when it first stands (--walk, --cycles)
+            warnings.append("no sidecar says when the operator started walking; the recorded heartbeat shows walking: "
+                            "the start assumed at the controller's start, as controller --walk asks it "
+                            "(--request-walk-tick TICK or --no-request-walk to change)")
+        elif walk_tick is None:
             warnings.append("no sidecar says when the operator started walking: none assumed (--request-walk-tick sets it)")
     result = resimulate(src.frames(), cfg.controller, codec=src.codec, max_delta_counter=cfg.protocol.max_delta_counter,
                         request_walk_tick=walk_tick).as_dict()
-    warnings = src.warnings() + warnings
+    warnings = src.warnings() + order_warnings + warnings
     result = {"files": args.files, "overrides": args.set, "request_walk_tick": walk_tick, **result,
               "input": src.report.as_dict(), "warnings": warnings}
     if args.json:
@@ -352,3 +400,28 @@ def run_resim(args: argparse.Namespace) -> int:
         print(format_text(result), end="")
         _warn(warnings)
     return 0 if result["reproduced"] else 1
+
+
+# -- ticks ---------------------------------------------------------------------------------------
+
+
+def run_ticks(args: argparse.Namespace) -> int:
+    from tools.trace.ticks import Series, TicksError, format_text, plot_png, summarise
+
+    if args.start is not None and args.end is not None and args.end < args.start:
+        raise TicksError(f"--to {args.end:g} is before --from {args.start:g}")
+    if args.plot:
+        check_output(args.plot, inputs=args.logs, option="--plot")  # before reading: never over an input
+    series = Series() if args.plot else None
+    result = summarise(args.logs, start_s=args.start, end_s=args.end, series=series)
+    if args.plot:
+        title = args.title or ", ".join(Path(f).name for f in args.logs)
+        result["plot"] = plot_png(series, args.plot, title=title, inputs=args.logs)
+    if args.json:
+        print_json(result)
+    else:
+        print(format_text(result), end="")
+        if args.plot:
+            print(f"plotted {result['plot']['points']} ticks to {result['plot']['file']}")
+        _warn(result["warnings"])
+    return 0

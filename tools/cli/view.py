@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from tools.cli.common import StopSignals, add_config_options, load_cli_config, positive_float, print_json
+from tools.cli.common import StopSignals, add_config_options, load_cli_config, port, positive_float, print_json
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -27,7 +27,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--speed", type=float, default=1.0, metavar="X",
                    help="--trace: times the recorded pace (default 1; 0: as fast as it reads)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1; any other needs --token)")
-    p.add_argument("--port", type=int, default=8050, help="port (default 8050; 0: any free one)")
+    p.add_argument("--port", type=port, default=8050, help="port (default 8050; 0: any free one)")
     p.add_argument("--token", help="secret the page must present (/?token=SECRET); required off loopback")
     p.add_argument("--rate", type=positive_float, default=25.0, metavar="HZ", help="page updates per second (default 25)")
     p.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
@@ -47,6 +47,15 @@ def run(args: argparse.Namespace) -> int:
     check_bind(args.host, args.token)  # before anything is opened
     if args.screenshot and not (args.trace or args.duration):
         raise AiderError("--screenshot is taken when the trace ends or after --duration: give --trace or --duration")
+    if args.screenshot:
+        from config.files import check_output
+
+        check_output(args.screenshot, inputs=[*(args.trace or ()), args.config], option="--screenshot")
+    if args.trace:
+        from tools.trace.reader import check_has_frames, check_readable
+
+        check_readable(args.trace)
+        check_has_frames(args.trace)  # an empty or unreadable trace is an error, not a view of nothing
     if args.screenshot:
         from tools.view.browser import missing
 

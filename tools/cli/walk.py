@@ -12,7 +12,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from tools.cli.common import StopSignals, add_config_options, add_mode_option, load_cli_config, positive_float, positive_int, print_json, sim_mode
+from tools.cli.common import StopSignals, add_config_options, add_mode_option, config_path, load_cli_config, patients_folder, positive_float, positive_int, print_json, sim_mode, port, seed_type
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -32,12 +32,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_config_options(p)
     p.add_argument("--steps", type=positive_int, default=10, metavar="N",
                    help="gait cycles to walk (the paper's steps: a left and a right swing each; default 10)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the patient's stick placement and sensor noise (default 0)")
+    p.add_argument("--seed", type=seed_type, default=0, help="seed of the patient's stick placement and sensor noise (default 0)")
     add_mode_option(p)
     p.add_argument("--fixed-step", type=positive_float, metavar="M", help="every step this long: no compensation (the baseline)")
     p.add_argument("--learn", action="store_true", help="learn the compensation online with PI² (saved to --patient's file)")
-    p.add_argument("--patient", metavar="NAME", help="walk with (and, learning, update) this patient's learned parameters")
-    p.add_argument("--patients-dir", metavar="DIR", help="folder of the patient files (default: controller.patients_dir)")
+    p.add_argument("--patient", metavar="NAME", help="walk with (and, learning, update) this patient's learned parameters "
+                   "(no such file: an error, unless --learn creates it)")
+    p.add_argument("--patients-dir", metavar="DIR", help="folder of the patient files (default: controller.patients_dir, relative: to the configuration file's folder)")
     p.add_argument("--virtual-patient", metavar="FILE", type=Path,
                    help="in-process only: walk this simulated patient (config/patients/*.yaml: body, arms, stick placement, "
                         "the controller's body model; docs/POPULATION.md)")
@@ -51,7 +52,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     v = p.add_argument_group("live view (docs/VIEW.md)")
     v.add_argument("--view", action="store_true",
                    help="serve the live view of this walk (aider-exo view, listening to the walk's bus) and print its address")
-    v.add_argument("--view-port", type=int, default=8050, metavar="PORT", help="--view: port on 127.0.0.1 (default 8050; 0: any free one)")
+    v.add_argument("--view-port", type=port, default=8050, metavar="PORT", help="--view: port on 127.0.0.1 (default 8050; 0: any free one)")
     v.add_argument("--linger", type=positive_float, default=0.0, metavar="S",
                    help="--view: keep serving the page S seconds after the walk ends (default 0)")
     p.set_defaults(func=run)
@@ -98,7 +99,9 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from config import ConfigError
+    from config.files import check_output, check_output_folder
     from controller.factory import step_policy
+    from controller.patients import patient_path
     from controller.telemetry import TelemetryLog
     from tools.pipeline import Pace, walk
 
@@ -116,12 +119,22 @@ def run(args: argparse.Namespace) -> int:
         virtual_patient, cfg = load_patient(args.virtual_patient, cfg)
     if two_processes and args.render:
         raise ConfigError(f"--render needs the simulation in this process (not --bus {cfg.bus.interface})", key="bus.interface")
+    # Every output is checked before the walk starts (an unwritable one must not lose the walk's summary).
+    inputs = [config_path(args), args.virtual_patient]
+    if args.render:
+        check_output_folder(args.render, option="--render")  # created now; its parent must exist
+        inputs += [args.render / f"walk-{args.mode}.png", args.render / f"walk-{args.mode}.gif"]
+    if args.log:
+        check_output(args.log, inputs=inputs, option="the telemetry log --log")
+    patients = patients_folder(args, cfg)
     # Exploration seeded from --seed (its own stream): a learning walk is as repeatable as any other.
     rng = np.random.default_rng(np.random.SeedSequence([args.seed, 1]))
     policy, saver = step_policy(cfg.controller, fixed_m=args.fixed_step, learn=args.learn, patient=args.patient,
-                                patients_dir=args.patients_dir, rng=rng)
+                                patients_dir=str(patients), rng=rng)
     if args.learn and not args.patient:
         print("aider-exo walk: warning: learning without --patient: what is learnt is not kept", file=sys.stderr)
+    if args.patient and not (args.quiet or args.json):
+        print(f"aider-exo walk: patient {args.patient}: {patient_path(patients, args.patient)}", file=sys.stderr)
     if args.pace is not None and args.pace < 0:
         raise ConfigError(f"--pace {args.pace}: give 0 (as fast as it computes) or a positive factor", key="pace")
     pace = Pace(args.pace if args.pace is not None else 1.0 if args.view else 0.0)
@@ -150,6 +163,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         telemetry = TelemetryLog(args.log) if args.log else None  # in the try: the saver is closed if it fails
+        if telemetry is not None and telemetry.previous is not None:
+            print(f"aider-exo walk: the previous log {args.log} was moved to {telemetry.previous}", file=sys.stderr)
         if two_processes:
             outcome, nodes_report = _walk_two_processes(args, cfg, policy, watched, telemetry)
         else:
@@ -181,7 +196,6 @@ def run(args: argparse.Namespace) -> int:
     if view_report is not None:
         summary["view"] = view_report
     if recorder is not None and len(recorder):
-        args.render.mkdir(parents=True, exist_ok=True)
         summary["render"] = {
             "strip": str(recorder.save_strip(args.render / f"walk-{args.mode}.png", 6)),
             "gif": str(recorder.save_gif(args.render / f"walk-{args.mode}.gif")),

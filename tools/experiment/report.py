@@ -8,12 +8,12 @@ import csv
 import io
 import json
 import math
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from config.files import write_bytes
 from controller.factory import step_bounds
 from tools.experiment.compare import ADAPTIVE
 from tools.experiment.experiment import (CHEAPER_FALLS_SHARE, LINE_AGREEMENT_M, X_SPREAD_RANGE, X_SPREAD_STD, Results,
@@ -32,9 +32,7 @@ COLORS = {"A": "tab:blue", "B": "tab:orange"}
 
 
 def _write(path: Path, text: str | bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_bytes(text if isinstance(text, bytes) else text.encode())
-    os.replace(tmp, path)
+    write_bytes(path, text if isinstance(text, bytes) else text.encode())
 
 
 def _csv(rows: list[dict[str, Any]]) -> str:

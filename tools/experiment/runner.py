@@ -16,7 +16,6 @@ import hashlib
 import json
 import math
 import multiprocessing
-import os
 import signal
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -27,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from config import AiderError, Config, config_hash
+from config.files import write_text
 from config.patient_schema import VirtualPatient
 
 #: the stored result's format, part of every job's key: a result whose meaning changes gets a new
@@ -299,6 +299,4 @@ class WalkPool:
         path = self._path(job)
         if path is None:
             return
-        tmp = path.with_suffix(f".tmp{os.getpid()}")
-        tmp.write_text(json.dumps(result) + "\n")
-        os.replace(tmp, path)  # a result is either whole or absent: an interrupted write is redone
+        write_text(path, json.dumps(result) + "\n")  # a result is either whole or absent: an interrupted write is redone

@@ -14,15 +14,13 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata
 import json
-import os
 import re
 import subprocess
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from config import Config, config_hash
+from config.files import write_text
 from protocol.catalog import Catalog
 from tools.trace import TraceError
 
@@ -36,28 +34,8 @@ def partial_path(path: Path) -> Path:
     return path.with_name(f"{path.stem}.partial{path.suffix}")
 
 
-@contextmanager
-def atomic_output(path: str | Path) -> Iterator[Path]:
-    """Yield the temporary path to write; it is renamed onto ``path`` when the block ends
-    normally and removed when it raises (or is interrupted)."""
-    path = Path(path)
-    if path.is_dir():
-        raise TraceError(f"{path}: is a folder, not a file")
-    if not path.parent.is_dir():
-        raise TraceError(f"{path.parent}: no such folder")
-    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
-    try:
-        yield tmp
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    if tmp.exists():
-        os.replace(tmp, path)
-
-
 def write_json(path: str | Path, data: Any) -> None:
-    with atomic_output(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2) + "\n")
+    write_text(path, json.dumps(data, indent=2) + "\n")
 
 
 def sidecar_path(trace: str | Path) -> Path:

@@ -12,9 +12,9 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from config.files import atomic_path
 from tools.trace import TraceError
 from tools.trace.decode import OK, Formatter, Row
-from tools.trace.files import atomic_output
 
 
 def collect(rows: Iterable[Row], fmt: Formatter) -> tuple[dict[tuple[str, str], tuple[str, list[float], list[float]]], list[float]]:
@@ -37,7 +37,9 @@ def collect(rows: Iterable[Row], fmt: Formatter) -> tuple[dict[tuple[str, str], 
     return series, bad
 
 
-def plot_png(rows: Iterable[Row], fmt: Formatter, out: str | Path, *, title: str) -> dict[str, Any]:
+def plot_png(rows: Iterable[Row], fmt: Formatter, out: str | Path, *, title: str,
+             inputs: Iterable[str | Path | None] = ()) -> dict[str, Any]:
+    """Plot the chosen signals of ``rows`` to the PNG ``out`` (atomically; never over one of ``inputs``)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -62,7 +64,7 @@ def plot_png(rows: Iterable[Row], fmt: Formatter, out: str | Path, *, title: str
         ax.legend(loc="upper right", fontsize="small")
     axes[-1].set_xlabel("time since the first frame [s]")
     fig.suptitle(title)
-    with atomic_output(out) as tmp:
+    with atomic_path(out, inputs=inputs) as tmp:
         fig.savefig(tmp, format="png", dpi=100)
     return {"file": str(out), "panels": len(by_unit), "signals": [f"{m}.{s}" for m, s in series],
             "points": sum(len(v[1]) for v in series.values()), "bad_frames": len(bad)}

@@ -276,7 +276,7 @@ def frames_of_file(path: str | Path, report: ReadReport, stdin: TextIO | None = 
         yield from _candump_frames(stdin or sys.stdin, "<stdin>", report)
         return
     path = _checked(path)
-    suffix = path.suffix.lower()
+    suffix = trace_suffix(path)
     report.files.append(str(path))
     if suffix in (".log", ".csv"):
         parse = _candump_frames if suffix == ".log" else _csv_frames
@@ -286,22 +286,74 @@ def frames_of_file(path: str | Path, report: ReadReport, stdin: TextIO | None = 
     yield from _library_frames(_open_library_reader(path, suffix, report), str(path), report)
 
 
-def read_frames(paths: Iterable[str | Path], report: ReadReport, stdin: TextIO | None = None) -> Iterator[Frame]:
-    """The frames of several files, one after the other, counted (and backwards timestamps) in ``report``."""
+def read_frames(paths: Iterable[str | Path], report: ReadReport, stdin: TextIO | None = None, *,
+                require_frames: bool = False) -> Iterator[Frame]:
+    """The frames of several files, one after the other, counted (and backwards timestamps) in ``report``.
+    ``require_frames``: a file without a single readable frame (empty, not a trace, another format
+    under this suffix) ends the read with a :class:`TraceError` saying what was wrong and where."""
     last = float("-inf")
     for path in paths:
+        before = report.frames
         for frame in frames_of_file(path, report, stdin):
             report.frames += 1
             if frame.timestamp < last:
                 report.backwards += 1
             last = frame.timestamp
             yield frame
+        if require_frames and report.frames == before:
+            raise TraceError(no_frames_reason(path, report))
+
+
+def check_has_frames(paths: Iterable[str | Path]) -> None:
+    """Fail early, with one line, for a file that holds no readable frame (read up to its first one)."""
+    for path in paths:
+        if str(path) != "-":
+            frames = read_frames([path], ReadReport(), require_frames=True)
+            try:
+                next(frames, None)
+            finally:
+                frames.close()
+
+
+def no_frames_reason(path: str | Path, report: ReadReport) -> str:
+    """One line: why ``path`` gave no frame."""
+    name = "<stdin>" if str(path) == "-" else str(path)
+    kind = "standard input" if str(path) == "-" else f"a {trace_suffix(path)} trace"
+    try:
+        empty = str(path) != "-" and Path(path).stat().st_size == 0
+    except OSError:
+        empty = False
+    if empty:
+        why = "the file is empty"
+    else:
+        mine = [p for p in report.problems if p.startswith(f"{name}:")]
+        skipped = [e for e in report.examples if e.startswith(f"{name}")]
+        if mine:
+            why = mine[-1][len(name) + 2:]
+            if "(truncated or corrupt: " in why:  # no frame at all: the reader's own complaint is the reason
+                why = why.split("(truncated or corrupt: ", 1)[1].rstrip(")")
+        elif skipped:
+            why = f"no line is a frame, e.g. {skipped[0][len(name):].lstrip(':')}"
+        else:
+            why = "nothing in it is a frame"
+    return f"{name}: no CAN frame could be read ({why}): is it {kind}?"
+
+
+def trace_suffix(path: str | Path) -> str:
+    """The format's suffix of ``path``, lower case: a file still being written by the session
+    recorder (``NAME.log.part``, or left so by a recorder that was killed) is read as its format."""
+    p = Path(path)
+    if p.suffix.lower() == ".part" and Path(p.stem).suffix:
+        return Path(p.stem).suffix.lower()
+    return p.suffix.lower()
 
 
 def _checked(path: str | Path) -> Path:
     p = Path(path)
-    if p.suffix.lower() not in READ_SUFFIXES:
+    if trace_suffix(p) not in READ_SUFFIXES:
         raise TraceError(f"{p}: unknown trace format {p.suffix or '(no suffix)'!r}; readable: {', '.join(READ_SUFFIXES)}")
+    if p.is_dir():
+        raise TraceError(f"{p}: is a folder, not a trace file")
     if not p.is_file():
         raise TraceError(f"{p}: no such file")
     return p

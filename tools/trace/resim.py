@@ -18,7 +18,20 @@ This is how a controller change is regression-tested against recorded sessions: 
 run must be reproduced with zero divergence by the controller that recorded it.
 
 The operator's start (``request_walk``) is not on the bus: the recording's sidecar gives its
-tick (``aider-exo trace record --walk`` writes it), or the caller does.
+tick (``aider-exo trace record --walk`` writes it), or the caller does (``"start"``: at each
+controller start, as ``aider-exo controller --walk`` asks it: kept until the controller stands).
+
+A recording of a real-time session (the session recorder on ``can0``, ``candump -L``) is read the
+same way: only the SYNC frames' tick numbers cut it, never the timestamps, so wall-clock time and
+jitter do not matter, and node answers that came after the controller's frames are the late
+answers above. What differs is handled so: a tick number that jumps (the real-time loop overran
+and skipped ticks) is told to the core as the loop does (:meth:`ControllerCore.overran`); a tick
+number that goes back (to 0: the controller was restarted) starts a fresh controller; a recording
+that starts while a controller runs (its first SYNC's tick is not 0) cannot be re-simulated from
+there, since a fresh controller does not have the running one's state (its FSM, the nodes' states,
+the estimator): those ticks, and the frames before the first SYNC, are skipped and counted up to
+the next controller start. The frames between a controller's last frame and a restarted one's
+SYNC(0) are the new controller's first read, as the frames before a recording's first SYNC(0) are.
 """
 
 from __future__ import annotations
@@ -29,6 +42,7 @@ from typing import Any
 
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver
+from protocol.enums import GaitState
 from protocol.errors import EncodeError
 from tools.trace.decode import decimals
 from tools.trace.reader import Frame
@@ -65,6 +79,12 @@ class ResimReport:
     node_frames_fed: int = 0
     node_frames_rejected: int = 0
     final_state: str | None = None
+    runs: int = 0  # controller starts re-simulated (a restart in the recording starts a fresh controller)
+    first_sync_tick: int | None = None
+    skipped_frames: int = 0  # frames before the first SYNC of a recording that starts mid-session
+    skipped_ticks: int = 0  # ticks of a controller whose start is not in the recording
+    overruns: int = 0  # tick numbers that jumped (the real-time loop skipped ticks), told to the core
+    ticks_jumped: int = 0  # the ticks they skipped
 
     @property
     def first(self) -> Divergence | None:
@@ -77,7 +97,10 @@ class ResimReport:
             "first_divergence": self.first.as_dict() if self.first else None,
             "divergences": [d.as_dict() for d in self.divergences],
             "node_frames_fed": self.node_frames_fed, "node_frames_rejected": self.node_frames_rejected,
-            "final_state": self.final_state,
+            "final_state": self.final_state, "runs": self.runs,
+            "skipped": {"first_sync_tick": self.first_sync_tick, "frames_before_first_sync": self.skipped_frames,
+                        "ticks_before_controller_start": self.skipped_ticks},
+            "overruns": {"count": self.overruns, "ticks_skipped": self.ticks_jumped},
         }
 
 
@@ -87,10 +110,12 @@ class Tick:
     node_frames: list[Frame]  # before the controller's first frame of the tick: read in the tick
     controller_frames: list[Frame]
     late_frames: list[Frame] = field(default_factory=list)  # after it: read before the next SYNC
+    preamble: int = 0  # the first tick: how many of node_frames came before its SYNC
 
 
 def ticks_of(frames: Iterable[Frame], codec: Codec) -> Iterator[Tick]:
-    """The trace cut at its SYNCs; frames before the first SYNC belong to the first tick."""
+    """The trace cut at its SYNCs; frames before the first SYNC belong to the first tick (the
+    first ``preamble`` of its node frames)."""
     sync = codec.spec("SYNC")
     controller = sync.sender
     current: Tick | None = None
@@ -103,7 +128,7 @@ def ticks_of(frames: Iterable[Frame], codec: Codec) -> Iterator[Tick]:
                 continue  # a SYNC that fails its check was not acted on by the nodes either
             if current is not None:
                 yield current
-            current = Tick(decoded.values.tick, before, [])
+            current = Tick(decoded.values.tick, before, [], preamble=len(before))
             before = []
         elif current is None:
             before.append(frame)
@@ -151,13 +176,16 @@ def _compare(codec: Codec, tick: int, recorded: list[tuple[str, Any]], resim: li
 
 
 def resimulate(frames: Iterable[Frame], controller_cfg: Any, *, codec: Codec, max_delta_counter: int,
-               request_walk_tick: int | None) -> ResimReport:
-    """Feed a fresh :class:`ControllerCore` the recorded node frames and compare (see the module doc)."""
+               request_walk_tick: int | str | None) -> ResimReport:
+    """Feed a fresh :class:`ControllerCore` the recorded node frames and compare (see the module
+    doc). ``request_walk_tick``: the tick of the operator's start (in each controller run),
+    ``"start"`` for each run's first tick, or None."""
     from controller.core import ControllerCore
 
-    core = ControllerCore(controller_cfg, policy=None)
-    rx = Receiver(codec, max_delta_counter=max_delta_counter)
     report = ResimReport()
+    core: ControllerCore | None = None
+    rx = Receiver(codec, max_delta_counter=max_delta_counter)
+    last_tick: int | None = None
 
     def feed(frames: list[Frame], k: int, queued: bool) -> None:
         for frame in frames:
@@ -167,10 +195,35 @@ def resimulate(frames: Iterable[Frame], controller_cfg: Any, *, codec: Codec, ma
             core.accept(result, k, queued)  # as the loop: a rejection counted by the core too
 
     late: list[Frame] = []
+    preamble: list[Frame] = []
     for tick in ticks_of(frames, codec):
         k = tick.number
-        if request_walk_tick is not None and k == request_walk_tick:
+        if report.first_sync_tick is None:
+            report.first_sync_tick = k
+        first = last_tick is None
+        if first and k != 0:  # the recording starts while a controller runs: up to its next start
+            report.skipped_frames = tick.preamble
+        started = (first and k == 0) or (not first and k < last_tick)  # a controller's start (or restart)
+        if started:  # a fresh controller, as the restarted process
+            core = ControllerCore(controller_cfg, policy=None)
+            rx = Receiver(codec, max_delta_counter=max_delta_counter)
+            report.runs += 1
+            # what came after the last controller's frames, before this SYNC(0): the restarted
+            # controller's preamble, as the frames before the recording's first SYNC(0) are
+            preamble, late = late, []
+        elif core is not None and k > last_tick + 1:  # the real-time loop overran: ticks skipped
+            report.overruns += 1
+            report.ticks_jumped += k - last_tick - 1
+            core.overran(k, k - last_tick - 1)
+        last_tick = k
+        if core is None:
+            report.skipped_ticks += 1
+            late = tick.late_frames  # the next controller start's preamble, if it follows
+            continue
+        if (request_walk_tick == "start" and started) or (isinstance(request_walk_tick, int) and k == request_walk_tick):
             core.request_walk()
+        if started and preamble:
+            feed(preamble, k, queued=False)
         feed(late, k, queued=True)
         feed(tick.node_frames, k, queued=False)
         late = tick.late_frames
@@ -191,12 +244,37 @@ def resimulate(frames: Iterable[Frame], controller_cfg: Any, *, codec: Codec, ma
     return report
 
 
+def walked(frames: Iterable[Frame], codec: Codec) -> bool:
+    """Whether the recorded controller's heartbeat ever says it walked (the operator started it)."""
+    heartbeat = codec.spec("CONTROLLER_HEARTBEAT")
+    walking = {int(GaitState.DOUBLE_SUPPORT), int(GaitState.SWING_LEFT), int(GaitState.SWING_RIGHT), int(GaitState.STOP)}
+    for frame in frames:
+        if frame.arbitration_id == heartbeat.frame_id and not frame.is_extended_id:
+            decoded = codec.decode(frame.arbitration_id, frame.data)
+            if type(decoded) is Decoded and int(decoded.values[0]) in walking:
+                return True
+    return False
+
+
 def format_text(r: dict[str, Any]) -> str:
     lines = [f"resim: {r['ticks']} ticks, {r['frames_compared']} controller frames and {r['signals_compared']} signals "
              f"compared; {r['node_frames_fed']} node frames fed ({r['node_frames_rejected']} rejected by the receiver); "
              f"final state {r['final_state']}"]
+    skipped, overruns = r.get("skipped") or {}, r.get("overruns") or {}
+    if skipped.get("ticks_before_controller_start"):
+        lines.append(f"skipped: the recording starts at tick {skipped['first_sync_tick']} of a running controller: "
+                     f"{skipped['frames_before_first_sync']} frame(s) before its first SYNC and "
+                     f"{skipped['ticks_before_controller_start']} tick(s) up to the next controller start not re-simulated")
+    if r.get("runs", 0) > 1:
+        lines.append(f"controller starts: {r['runs']} (each re-simulated by a fresh controller)")
+    if overruns.get("count"):
+        lines.append(f"overruns: the tick number jumped {overruns['count']} time(s), {overruns['ticks_skipped']} tick(s) "
+                     "skipped (told to the controller as its loop did)")
     if r["reproduced"]:
         lines.append("result: reproduced, zero divergence")
+    elif r["ticks"] == 0 and skipped.get("ticks_before_controller_start"):
+        lines.append("result: nothing to compare (no controller start in the recording: a fresh controller cannot "
+                     "take over a running one's state; give the files from the controller's start, SYNC tick 0)")
     elif r["ticks"] == 0:
         lines.append("result: nothing to compare (no SYNC in the trace)")
     else:

@@ -42,7 +42,8 @@ class TraceInput:
         return self.sidecars[0] if self.sidecars else {}
 
     def frames(self) -> Iterator[Frame]:
-        return read_frames(self.files, self.report)
+        """The frames of the files in order; a file without one readable frame is a :class:`TraceError`."""
+        return read_frames(self.files, self.report, require_frames=True)
 
     def warnings(self, receiver: Any = None) -> list[str]:
         """One line per problem met so far (``receiver``: the one that checked the frames)."""

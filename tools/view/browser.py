@@ -122,6 +122,7 @@ class Browser:
         self.page.wait_for_function(js, timeout=timeout_s * 1000)
 
     def screenshot(self, path: Path) -> Path:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.page.screenshot(path=str(path), full_page=True)
-        return path
+        """The page as a PNG at ``path`` (written atomically: config.files)."""
+        from config.files import write_bytes
+
+        return write_bytes(path, self.page.screenshot(full_page=True))
