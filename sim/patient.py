@@ -264,10 +264,14 @@ class Patient:
             # into the middle half of the window, not to its edge: a stick lifted at the edge
             # leaves the other arm at its limit, and the body creeps on over it while the stick is up
             quarter = (hi - lo) / 4
-            target = (lo + hi) / 2 if lo > hi else clamp(float(com[0]), lo + quarter, hi - quarter)
-            if math.isfinite(target):
-                step = g.shift_speed_m_s * dt
-                self.com_target[0] += clamp(target - self.com_target[0], -step, step)
+            if lo <= hi:
+                target = clamp(float(com[0]), lo + quarter, hi - quarter)
+            else:
+                # no window: back onto the feet (their balance point), where the legs carry the body
+                # and the stance feet stop sliding; the window is looked for again from there
+                target = float(np.mean([self.ankle_xy(s)[0] for s in SIDES if self.stance[s]])) + g.shift_margin_m
+            step = g.shift_speed_m_s * dt
+            self.com_target[0] += clamp(target - self.com_target[0], -step, step)
             slack = g.shift_margin_m / 2  # aimed with the whole margin, lifted with half of it
             inside = lo - slack <= com[0] <= hi + slack
             still = float(np.linalg.norm(self.kin.com_velocity[:2])) < g.shift_still_speed_m_s
