@@ -16,10 +16,12 @@ trunk's heading (its yaw removed), so the ratio needs no global position. Per ti
   pivot, widened by half the sole across the heading, and the loaded tips), as the simulation's
   ground truth defines it; X_CoM/X_SP is the CoM's place between its rear and front extent;
 * at a swing's start (not every tick), :meth:`StateEstimator.stance_ratio`, the step-length
-  compensation's input, as SPEC defines it: the CoM's place along the walking direction, at its
-  lateral place, between the rear and the front edge of the swing's support polygon (the stance
-  sole, heel to toe, and both tips, whatever they carry: a stick's load crosses its threshold as
-  the swing starts); :meth:`StateEstimator.planted_ratio`, the same over both soles and both tips.
+  compensation's input, as SPEC defines it: the CoM's place along the walking direction in the
+  swing's support polygon (the stance sole, heel to toe, and both tips, whatever they carry: a
+  stick's load crosses its threshold as the swing starts), from its rear-most point (the heel) to
+  its front edge where the CoM's line crosses it (the tips' line): the share of the way from the
+  foot to the sticks, which the lever rule makes the sticks' share of the weight;
+  :meth:`StateEstimator.planted_ratio`, the same over both soles and both tips.
 """
 
 from __future__ import annotations
@@ -169,9 +171,9 @@ class StateEstimator:
 
     def stance_ratio(self, est: Estimate, stance: int) -> float:
         """X_CoM/X_SP over the support of a swing of the other leg (SPEC): where the CoM lies along
-        the walking direction, at its lateral place, between the rear and the front edge of the
-        polygon of leg ``stance``'s sole (0 left, 1 right) and both stick tips; nan where that line
-        crosses less than ``min_support_m`` of it."""
+        the walking direction in the polygon of leg ``stance``'s sole (0 left, 1 right) and both
+        stick tips, from its rear-most point (the heel) to its front edge on the CoM's line (the
+        tips' line); nan for a span shorter than ``min_support_m``."""
         return self._ratio_on_line(est.com, [est.ankles[stance]], est.tips)
 
     def planted_ratio(self, est: Estimate) -> float:
@@ -182,7 +184,8 @@ class StateEstimator:
         b = self.body
         corners = [(float(a[0]) + dx, float(a[1]) + dy) for a in ankles
                    for dx in (-b.foot_heel_m, b.foot_toe_m) for dy in (-b.foot_half_width_m, b.foot_half_width_m)]
-        rear, front = window_on_line(convex_hull(corners + [(float(t[0]), float(t[1])) for t in tips]), float(com[1]), 0.0)
+        points = corners + [(float(t[0]), float(t[1])) for t in tips]
+        rear, front = min(x for x, _ in points), window_on_line(convex_hull(points), float(com[1]), 0.0)[1]
         return (float(com[0]) - rear) / (front - rear) if front - rear >= b.min_support_m else math.nan
 
     def fore_aft_ratio(self, com_x: float, xs: list[float]) -> float:

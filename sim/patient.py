@@ -226,12 +226,19 @@ class Patient:
         sole = [(x + dx, y + dy) for dx in (-f.heel_back_m, f.toe_front_m) for dy in (-f.half_width_m, f.half_width_m)]
         return np.array(sole + [tuple(self.tip_point(s)[:2]) for s in SIDES])
 
+    def swing_span(self, stance: str) -> tuple[float, float]:
+        """(rear, front) of X_SP over :meth:`swing_support`: its rear-most point (the heel) and its
+        front edge where the CoM's walking line crosses it (the tips' line; SPEC, as the
+        controller's estimator measures it)."""
+        support = self.swing_support(stance)
+        return float(support[:, 0].min()), extent_on_line(support, self.kin.com[:2])[1]
+
     def _lean_goal(self) -> float:
         """The CoM's x at the intended X_CoM/X_SP of the swing's support (SPEC: along the walking
         direction at the CoM's lateral place, from the front foot's heel to the tips' line), within
         ``lean_x_min``..``lean_x_max`` and no farther than the arms hold in the swing."""
         g = self.g
-        rear, front = extent_on_line(self.swing_support(self.front_foot()), self.kin.com[:2])
+        rear, front = self.swing_span(self.front_foot())
         ankle = float(self.ankle_xy(self.front_foot())[0])
         # the sticks' share of the weight over the stance ankle and the tips (lever rule) at most
         # stick_force_comfort_n on each

@@ -24,7 +24,7 @@ from sim.model import build_body
 from sim.patient import OTHER, SIDES, Patient, Phase, StepPlan
 from sim.scripted_gait import ScriptedGait
 from sim.sensors import Reading, Sensors, rpy_from_matrix
-from sim.truth import FallCriteria, fore_aft_ratio, fore_aft_ratio_at_lateral, pivot_polygon
+from sim.truth import FallCriteria, fore_aft_ratio, pivot_polygon
 from sim.world import StancePose, World
 
 __all__ = ["OTHER", "SIDES", "Phase", "StepRecord", "WalkResult", "Walker", "gait_settings", "initial_pose", "walk"]
@@ -181,8 +181,9 @@ class Walker:
         self.patient.landed(leg)
 
     def swing_ratio(self, stance: str) -> float:
-        """X_CoM/X_SP over the swing's support (SPEC; :meth:`sim.patient.Patient.swing_support`)."""
-        return fore_aft_ratio_at_lateral(self.patient.swing_support(stance), self.kin.com[:2])
+        """X_CoM/X_SP over the swing's support (SPEC; :meth:`sim.patient.Patient.swing_span`)."""
+        rear, front = self.patient.swing_span(stance)
+        return (float(self.kin.com[0]) - rear) / (front - rear) if front - rear > 0.0 else math.nan
 
     def _sense_steps(self, reading: Reading) -> None:
         """The patient's view of a step the exoskeleton makes: a foot that stays unloaded for

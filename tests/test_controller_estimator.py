@@ -11,7 +11,7 @@ import pytest
 
 from config import default_config_path, load_config
 from controller.estimator import Measurements, StateEstimator, rot_rpy
-from sim.truth import fore_aft_ratio, pivot_polygon
+from sim.truth import extent_on_line, fore_aft_ratio, pivot_polygon
 from sim.walk import OTHER, Walker, gait_settings, initial_pose
 from sim.world import World
 
@@ -75,10 +75,13 @@ def test_estimates_match_the_ground_truth_over_a_walk(mode):
             agree.append(list(est.feet_loaded) == feet and list(est.sticks_loaded) == sticks)
             if not (math.isnan(ratio) or math.isnan(est.x_ratio)):  # nan: no fore-aft extent to speak of
                 errors["ratio"].append(abs(est.x_ratio - ratio))
-            if all(feet) and all(sticks):  # where a swing may start: over its stance ankle and the tips
+            if all(feet) and all(sticks):  # where a swing may start: over its stance sole and the tips
                 stance = "lr".index(OTHER[walker.next_swing])
-                xs = [ankles[stance][0], *tips[:, 0]]
-                want = (com[0] - min(xs)) / (max(xs) - min(xs))
+                foot = CFG.sim.model.foot
+                sole = [ankles[stance][:2] + (dx, dy) for dx in (-foot.heel_back_m, foot.toe_front_m) for dy in (-foot.half_width_m, foot.half_width_m)]
+                support = np.vstack([sole, tips[:, :2]])
+                rear, front = support[:, 0].min(), extent_on_line(support, com[:2])[1]  # the heel, the tips' line
+                want = (com[0] - rear) / (front - rear)
                 errors["stance"].append(abs(estimator.stance_ratio(est, stance) - want))
         assert len(walker.steps) >= (2 if mode == "sagittal" else 0)
     worst = {k: float(np.max(v)) for k, v in errors.items()}

@@ -130,9 +130,9 @@ def test_each_step_records_the_patients_intention_and_where_its_sticks_went(refe
 
 @pytest.mark.parametrize("lean_x, bound", [(0.40, "intention"), (0.85, "arms"), (1.0, "arms")])
 def test_the_patients_lean_goal_is_its_intended_x_within_what_its_arms_hold(lean_x, bound):
-    """X_CoM/X_SP from the front foot's heel to the tips' midpoint (the support's front edge on the
-    CoM's line), and never farther than the sticks' lever-rule share over the ankle stays within
-    stick_force_comfort_n each."""
+    """X_CoM/X_SP along the walking direction at the CoM's lateral place, from the front foot's heel
+    to the tips' line (SPEC's support polygon of the swing), and never farther than the sticks'
+    lever-rule share over the ankle stays within stick_force_comfort_n each."""
     with World(SIM) as world:
         world.place(initial_pose(SIM))
         walker = Walker(world, SIM, gait_settings(SIM), np.random.default_rng(0))
@@ -141,7 +141,9 @@ def test_the_patients_lean_goal_is_its_intended_x_within_what_its_arms_hold(lean
         p.plan.intention = StepIntention(SIM.patient.intention.ahead_m, lean_x)
         ankle = float(p.ankle_xy(p.front_foot())[0])
         heel = ankle - SIM.model.foot.heel_back_m
-        tips = float(np.mean([p.tip_point(s)[0] for s in "lr"]))
+        (lx, ly), (rx, ry) = (p.tip_point(s)[:2] for s in "lr")
+        y = float(walker.kin.com[1])
+        tips = lx + (rx - lx) * (y - ly) / (ry - ly)  # the tips' line where the CoM's line crosses it
         intended = heel + min(max(lean_x, g.lean_x_min), g.lean_x_max) * (tips - heel)
         held = ankle + 2 * g.stick_force_comfort_n / (world.total_mass * GRAVITY) * (tips - ankle)
         goal = p._lean_goal()
