@@ -128,6 +128,7 @@ class BodyConfig:
     forearm_com_m: float = field_spec(doc="Forearm-and-stick CoM from the elbow.", unit="m", min=0.0, max=1.5)
     stick_loaded_n: float = field_spec(doc="A stick carrying more than this is on the ground.", unit="N", min=1.0, max=500.0)
     foot_loaded_n: float = field_spec(doc="A foot whose heel and toe carry more than this is on the ground.", unit="N", min=1.0, max=800.0)
+    foot_flat_n: float = field_spec(doc="A loaded foot whose heel and toe each carry more than this is flat: the floor lies ankle height below its ankle.", unit="N", min=1.0, max=800.0)
     min_support_m: float = field_spec(
         doc="X_CoM/X_SP is undefined (nan) for a support polygon shorter than this fore-aft (feet side by side).",
         unit="m", min=0.01, max=0.5,

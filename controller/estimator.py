@@ -7,7 +7,8 @@ trunk's heading (its yaw removed), so the ratio needs no global position. Per ti
 
 * the trunk's roll and pitch from its IMU rotate the body model into the heading frame;
 * legs: hip and knee encoders give the ankle joints (the sagittal chain of the exoskeleton); a
-  loaded foot is flat on the floor, so the floor lies ``ankle height`` below its ankle;
+  foot with heel and toe loaded is flat on the floor, so the floor lies ``ankle height`` below
+  its ankle (with no flat foot, as on a risen heel, the floor stays where it was);
 * arms: the stick's IMU gives the forearm-and-stick orientation; the elbow's axis is the forearm's
   y axis, so the upper arm lies in the forearm's x-z plane at an unknown elbow angle ``e``; a
   loaded stick's tip touches the floor, which fixes ``e`` (``A cos e + B sin e = C``, the root
@@ -131,7 +132,10 @@ class StateEstimator:
             ankle = _along(knee, legs.shank_m, shank)
             ankles.append(ankle)
             points += [_along(hip, b.thigh_com_m, thigh), _along(knee, b.shank_com_m, shank), (ankle[0] + fx, ankle[1] + 0.0, ankle[2] + fz)]
-        loaded_z = [ankles[i][2] - legs.ankle_height_m for i in range(2) if feet_loaded[i]]
+        # the floor from the feet that are flat (heel and toe loaded); with none (a heel risen in the
+        # swing, the foot on its toe, its ankle higher by the foot's tilt) the last tick's
+        loaded_z = [ankles[i][2] - legs.ankle_height_m for i in range(2)
+                    if feet_loaded[i] and heel[i] > b.foot_flat_n and toe[i] > b.foot_flat_n]
         if loaded_z:
             total = 0.0
             for z in loaded_z:  # summed in order, as numpy's mean of so few values
