@@ -239,9 +239,9 @@ def run_record(args: argparse.Namespace) -> int:
 
 
 def run_decode(args: argparse.Namespace) -> int:
+    from config.files import atomic_path
     from tools.trace import TraceError
     from tools.trace.decode import OK, Formatter, TraceDecoder, write_csv, write_jsonl, write_table
-    from config.files import atomic_path
 
     if args.output:
         check_output(args.output, inputs=_inputs(args), option="-o")  # before reading: never over an input
