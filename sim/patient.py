@@ -46,6 +46,7 @@ SIDES = ("l", "r")
 OTHER = {"l": "r", "r": "l"}
 #: weights of the wrench rows in the distribution (force x y z, moment x y z)
 WRENCH_WEIGHTS = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 0.5])
+SET_DOWN_PRESS_M = 0.02  # how far below the floor a set-down's tip path ends (over the path's last 30 %)
 FOOT_COST, STICK_COST = 1e-4, 4e-4  # relative effort of loading a foot (the legs) and a stick (the arms)
 
 
@@ -431,8 +432,12 @@ class Patient:
             if side in self.tip_path:
                 start, goal, u = self.tip_path[side]
                 point = start + (goal - start) * minimum_jerk(u)
-                lift = 4 * min(u, 1.0) * (1 - min(u, 1.0)) * g.stick_lift_m
-                point = point + np.array([0.0, 0.0, lift - (0.02 if u >= 1.0 else 0.0) + self.cfg.model.sticks.tip_radius_m])
+                # up and down with no speed at either end (sin^2): the tip meets the floor at rest;
+                # past the path's end it creeps below the floor until the stick carries
+                # stick_planted_n (a tip driven at once below it slams the floor through a near-straight arm)
+                lift = g.stick_lift_m * math.sin(math.pi * min(u, 1.0)) ** 2
+                press = SET_DOWN_PRESS_M * min(max(u - 1.0, 0.0) / 0.3, 1.0)
+                point = point + np.array([0.0, 0.0, lift - press + self.cfg.model.sticks.tip_radius_m])
                 reach = point - self.shoulder(side)
                 length = float(np.linalg.norm(reach))
                 if length > upper + lower - 1e-4:  # out of reach: the straight arm toward it
