@@ -1,8 +1,8 @@
 """The adaptive gait against fixed step lengths (paper Figs. 8 and 12).
 
 Every gait walks the same patient seeds (paired: the same stick-placement noise for each), ``N``
-gait cycles per walk. Per gait: stable gait cycles of ``N``, falls, the mean stick force and the
-mean upper-body torque of the completed steps (the simulation's ground truth of the patient's
+gait cycles per walk. Per gait: stable gait cycles of ``N``, falls, the mean stick force (per stick,
+and both sticks together) and the mean upper-body torque of the completed steps (the simulation's ground truth of the patient's
 arm torques, summed over the six arm joints), as the mean and spread over the seeds.
 """
 
@@ -49,6 +49,8 @@ class GaitStats:
             "cycles_at_fall": first_falls,
             "step_length_mean_m": _stat(lengths, np.mean), "step_length_std_m": _stat(lengths, np.std),
             "stick_force_mean_n": _stat(force, np.mean), "stick_force_std_n": _stat(force, np.std),
+            # both sticks together (the quantity of equation (10) summed over the two sticks)
+            "both_sticks_force_mean_n": _stat([2.0 * f for f in force], np.mean), "both_sticks_force_std_n": _stat([2.0 * f for f in force], np.std),
             "arm_torque_mean_nm": _stat(torque, np.mean), "arm_torque_std_nm": _stat(torque, np.std),
             "seeds": [w["job"]["seed"] for w in self.walks],
         }
