@@ -20,8 +20,8 @@ supports (:meth:`Patient.balance`); docs/SIM.md says why each rule is there:
 Balance: a desired wrench at the CoM (a spring-damper toward the CoM target and the trunk
 posture) distributed over the stance soles (two contacts across each sole) and the planted
 sticks, each a strut pushing along the line from its tip to the shoulder
-(:func:`sim.balance.distribute`); the planted arms apply their share as joint torques
-(``G - J^T f``) within the patient's strength, the moving arms follow their tip paths.
+(:func:`sim.balance.distribute`); the arms (:mod:`sim.arms`) apply the planted sticks' share as
+joint torques within the patient's strength and carry the moving sticks along their tip paths.
 """
 
 from __future__ import annotations
@@ -33,20 +33,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from config.sim_schema import SimConfig
+from sim.arms import SET_DOWN_SHARE, SIDES, Arms
 from sim.balance import Contact, WrenchGains, desired_wrench, distribute
 from sim.intention import Intention, StepIntention
 from sim.kinematics import Kinematics
-from sim.linalg import clamp, minimum_jerk
-from sim.model import arm_ik
+from sim.linalg import clamp
 from sim.sensors import Reading, rpy_from_matrix
-from sim.truth import convex_hull_2d, extent_on_line, pivot_polygon, stability_margin
+from sim.support import lift_window, swing_support
+from sim.truth import extent_on_line, pivot_polygon, stability_margin
 from sim.world import GRAVITY, World
 
-SIDES = ("l", "r")
 OTHER = {"l": "r", "r": "l"}
 #: weights of the wrench rows in the distribution (force x y z, moment x y z)
 WRENCH_WEIGHTS = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 0.5])
-SET_DOWN_PRESS_M = 0.02  # how far below the floor a set-down's tip path ends (over the path's last 30 %)
 FOOT_COST, STICK_COST = 1e-4, 4e-4  # relative effort of loading a foot (the legs) and a stick (the arms)
 
 
@@ -87,15 +86,13 @@ class Patient:
         self.intention = Intention(cfg.patient.intention, rng.spawn(1)[0])
         self.gains = WrenchGains()
         self.ankle_idx = {s: world.joint_index[f"ankle_{s}"] for s in SIDES}
-        self.forearm_idx = {s: world.joint_index[f"elbow_{s}"] for s in SIDES}
-        self.arm_joints = {s: [world.joint_index[f"{j}_{s}"] for j in ("shoulder_flexion", "shoulder_abduction", "elbow")] for s in SIDES}
+        self.arms = Arms(world, kin, cfg)
         self.phase, self.phase_t = Phase.SETTLE, 0.0
         self.walking = True  # the gait cycle starts only while set (under the controller: its gait state)
         self.com_target = np.zeros(2)
         self.stance = {"l": True, "r": True}  # feet the patient balances on
         self.planted = {"l": True, "r": True}  # stick tips on the ground and leant on
         self.unloading: dict[str, float] = {}  # stick -> seconds it has been unloading
-        self.tip_path: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}  # stick -> (start, goal, phase 0..1)
         self.stick_queue: list[str] = []
         self.lean_goal_x = math.nan
         self.plan = StepPlan()
@@ -110,15 +107,10 @@ class Patient:
         return self.kin.joint_origin[self.ankle_idx[side]][:2].copy()
 
     def tip_point(self, side: str) -> np.ndarray:
-        """The stick tip's lowest point (on the floor when planted)."""
-        origin, rot = self.world.link_frame(f"forearm_{side}")
-        b = self.body
-        return origin - rot[:, 2] * (b.forearm_m + b.grip_m + b.stick_m) - np.array([0.0, 0.0, self.cfg.model.sticks.tip_radius_m])
+        return self.arms.tip_point(side)
 
     def shoulder(self, side: str) -> np.ndarray:
-        origin, rot = self.world.link_frame("trunk")
-        sign = 1.0 if side == "l" else -1.0
-        return origin + rot @ np.array([0.0, sign * self.body.shoulder_half_width_m, self.body.shoulder_above_hip_m])
+        return self.arms.shoulder(side)
 
     def front_foot(self) -> str:
         """The stance foot of the next swing: the one that landed last (the exoskeleton alternates
@@ -167,31 +159,13 @@ class Patient:
         return self.stick_queue[:2] if together else self.stick_queue[:1]
 
     def lift_window(self, lifting: list[str]) -> tuple[float, float]:
-        """(lo, hi) of the CoM's x, at its lateral place, where the body rests on what stays when
-        ``lifting`` lift: ahead of the ankles' midpoint by ``balance_margin_m``, inside the soles
-        and the other planted stick with ``shift_margin_m``, and with that stick's share of the
-        weight within ``stick_force_comfort_n`` (lo > hi: no such place)."""
+        """:func:`sim.support.lift_window` when ``lifting`` lift: on the stance soles and the other
+        planted stick, that stick's share of the weight within ``stick_force_comfort_n``."""
         g = self.g
-        stays = [s for s in SIDES if s not in lifting and self.planted[s]]
         ankles = np.array([self.ankle_xy(s) for s in SIDES if self.stance[s]]).reshape(-1, 2)
-        balance = float(ankles[:, 0].mean()) + g.balance_margin_m
-        tip_xy = np.array([self.tip_point(s)[:2] for s in stays]).reshape(-1, 2)
-        poly = convex_hull_2d(pivot_polygon(ankles, tip_xy, ankle_halfwidth=self.cfg.model.foot.half_width_m))
-        y = float(self.kin.com[1])
-        far = max([ankles[:, 0].max(), *tip_xy[:, 0]])
-        xs = np.linspace(float(ankles[:, 0].min()) - self.cfg.model.foot.heel_back_m, far, 81)
-        ok = np.array([stability_margin(poly, (x, y)) >= g.shift_margin_m for x in xs])
-        if len(tip_xy) == 1 and len(ankles) == 2:
-            # the arm that stays takes what the lift hands it: its share of the weight (the tip's
-            # barycentric coordinate over the two ankles and the tip) at most its comfort
-            a, b, tip = ankles[0], ankles[1], tip_xy[0]
-            edge = b - a
-            share = (edge[0] * (y - a[1]) - edge[1] * (xs - a[0])) / (edge[0] * (tip[1] - a[1]) - edge[1] * (tip[0] - a[0]))
-            ok &= share <= g.stick_force_comfort_n / (self.world.total_mass * GRAVITY)
-        held = xs[ok]
-        if not len(held):
-            return math.inf, -math.inf
-        return max(balance, float(held.min())), float(held.max())
+        stays = np.array([self.tip_point(s)[:2] for s in SIDES if s not in lifting and self.planted[s]]).reshape(-1, 2)
+        return lift_window(ankles, stays, float(self.kin.com[1]), self.cfg.model.foot, shift_margin_m=g.shift_margin_m,
+                           balance_margin_m=g.balance_margin_m, max_stick_share=g.stick_force_comfort_n / (self.world.total_mass * GRAVITY))
 
     def _stick_goal(self, side: str, start: np.ndarray) -> np.ndarray:
         """Where a lifted stick goes: the intention plus its placement error ahead of the front
@@ -205,8 +179,7 @@ class Patient:
         x = origin_x + self.plan.intention.ahead_m + float(self.rng.normal(0.0, p.stick_noise_m))
         y, z = sign * p.stick_half_width_m, self.cfg.model.sticks.tip_radius_m
         shoulder = self.shoulder(side)
-        upper, lower = self.body.arm_reach_m
-        reach = math.sqrt(upper**2 + lower**2 + 2 * upper * lower * math.cos(p.stick_reach_elbow_rad))
+        reach = self.body.arm_span_m(p.stick_reach_elbow_rad)
         far = shoulder[0] + math.sqrt(max(reach**2 - (y - shoulder[1]) ** 2 - (z - shoulder[2]) ** 2, 0.0))
         near = float(start[0]) + p.stick_min_advance_m
         reason = "reach" if x > far else "advance" if x < near else None
@@ -220,12 +193,8 @@ class Patient:
         return np.array([x, y, 0.0])
 
     def swing_support(self, stance: str) -> np.ndarray:
-        """The points of the support polygon of a swing over leg ``stance``: its sole (heel to toe,
-        across its width) and both stick tips."""
-        f = self.cfg.model.foot
-        x, y = self.ankle_xy(stance)
-        sole = [(x + dx, y + dy) for dx in (-f.heel_back_m, f.toe_front_m) for dy in (-f.half_width_m, f.half_width_m)]
-        return np.array(sole + [tuple(self.tip_point(s)[:2]) for s in SIDES])
+        """The points of the support polygon of a swing over leg ``stance`` (its sole, both tips)."""
+        return swing_support(self.ankle_xy(stance), self.cfg.model.foot, np.array([self.tip_point(s)[:2] for s in SIDES]))
 
     def swing_span(self, stance: str) -> tuple[float, float]:
         """(rear, front) of X_SP over :meth:`swing_support`: its rear-most point (the heel) and its
@@ -327,16 +296,16 @@ class Patient:
                 del self.unloading[side]
                 self.planted[side] = False
                 start = self.tip_point(side)
-                self.tip_path[side] = (start, self._stick_goal(side, start), 0.0)
-        for side, (start, goal, u) in list(self.tip_path.items()):
+                self.arms.tip_path[side] = (start, self._stick_goal(side, start), 0.0)
+        for side, (start, goal, u) in list(self.arms.tip_path.items()):
             u += dt / g.stick_move_time_s
             if u >= 1.0 and reading.stick_force_n[SIDES.index(side)] > g.stick_planted_n:
-                del self.tip_path[side]
+                del self.arms.tip_path[side]
                 self.planted[side] = True
                 self.stick_queue.remove(side)
             else:
-                self.tip_path[side] = (start, goal, min(u, 1.3))
-        if not self.unloading and not self.tip_path:
+                self.arms.tip_path[side] = (start, goal, min(u, 1.0 + SET_DOWN_SHARE))
+        if not self.unloading and not self.arms.tip_path:
             if self.stick_queue:
                 self._set_phase(Phase.SHIFT)
             else:
@@ -407,52 +376,14 @@ class Patient:
                 # lean both stay planted (stick_planted_n: with 0 the spared one unloads as the swing
                 # starts, before the patient feels it)
                 min_n = g.swing_trigger_stick_n if self.phase is Phase.SWING else (g.stick_planted_n if self.phase is Phase.LEAN else None)
-                contacts.append(Contact(f"tip_{t}", self.forearm_idx[t], tip, cost, axis=axis, spread=g.strut_spread, min_n=min_n))
+                contacts.append(Contact(f"tip_{t}", self.arms.forearm_idx[t], tip, cost, axis=axis, spread=g.strut_spread, min_n=min_n))
         wrench = self.wrench()
         wrench[:2] += self.push
         forces, residual = distribute(wrench, kin.com, contacts, mu=0.5, min_normal_n=g.min_contact_n,
                                       weights=WRENCH_WEIGHTS, known_moment=self.ankle_spring_moment())
         self.last = BalanceResult(contacts, forces, residual, wrench)
-        self._command_arms(contacts, forces)
+        self.arms.command(contacts, forces)
         return self.last
-
-    def _command_arms(self, contacts: list[Contact], forces: np.ndarray) -> None:
-        """Planted arms push their share (``G - J^T f``, no position hold); moving arms follow
-        their tip paths (lift, carry, set down) by inverse kinematics."""
-        w, kin, g = self.world, self.kin, self.g
-        grav = kin.gravity_torques()
-        tips = [(c.link, c.point, f) for c, f in zip(contacts, forces) if c.name.startswith("tip_")]
-        tau = grav - kin.generalised_force([t[0] for t in tips], [t[1] for t in tips], [t[2] for t in tips]) if tips else grav
-        _, rot = w.link_frame("trunk")
-        upper, lower = self.body.arm_reach_m
-        targets: list[float] = []
-        torques: list[float] = []
-        for side in SIDES:  # in the arms' joint order (ARM_JOINT_NAMES: left, then right)
-            joints = self.arm_joints[side]
-            if side in self.tip_path:
-                start, goal, u = self.tip_path[side]
-                point = start + (goal - start) * minimum_jerk(u)
-                # up and down with no speed at either end (sin^2): the tip meets the floor at rest;
-                # past the path's end it creeps below the floor until the stick carries
-                # stick_planted_n (a tip driven at once below it slams the floor through a near-straight arm)
-                lift = g.stick_lift_m * math.sin(math.pi * min(u, 1.0)) ** 2
-                press = SET_DOWN_PRESS_M * min(max(u - 1.0, 0.0) / 0.3, 1.0)
-                point = point + np.array([0.0, 0.0, lift - press + self.cfg.model.sticks.tip_radius_m])
-                reach = point - self.shoulder(side)
-                length = float(np.linalg.norm(reach))
-                if length > upper + lower - 1e-4:  # out of reach: the straight arm toward it
-                    reach *= (upper + lower - 1e-4) / length
-                try:
-                    targets += arm_ik(rot.T @ reach, upper, lower, side)
-                except ValueError:  # too far to the side for this arm: it holds where it is
-                    targets += [w.q[j] for j in joints]
-                torques += [grav[j] for j in joints]
-            else:
-                targets += [w.q[j] for j in joints]
-                torques += [tau[j] for j in joints]
-        arms = w.arms
-        arms.track(np.minimum(np.maximum(targets, arms.lower + 1e-3), arms.upper - 1e-3),
-                   np.minimum(np.maximum(torques, -arms.rated), arms.rated))
 
     # -- reports --------------------------------------------------------------------------------
 

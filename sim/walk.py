@@ -314,8 +314,7 @@ def initial_pose(cfg: SimConfig) -> StancePose:
     pitch, hip_x, feet, half = 0.10, 0.05, (0.06, -0.06), cfg.patient.stick_half_width_m
     shoulder = np.array([hip_x + body.shoulder_above_hip_m * math.sin(pitch), body.shoulder_half_width_m,
                          body.hip_height_m + body.shoulder_above_hip_m * math.cos(pitch)])
-    upper, lower = body.arm_reach_m
-    reach = math.sqrt(upper**2 + lower**2 + 2 * upper * lower * math.cos(cfg.patient.stick_reach_elbow_rad))
+    reach = body.arm_span_m(cfg.patient.stick_reach_elbow_rad)
     ahead = math.sqrt(max(reach**2 - (half - shoulder[1]) ** 2 - (shoulder[2] - cfg.model.sticks.tip_radius_m) ** 2, 0.0))
     tips_x = min(max(feet) + 0.25, float(shoulder[0] + ahead))
     return StancePose(foot_x_m=feet, tip_xy_m=((tips_x, half), (tips_x, -half)), trunk_pitch_rad=pitch, hip_x_m=hip_x, knee_rad=0.08)

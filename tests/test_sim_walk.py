@@ -172,8 +172,7 @@ def test_a_stick_goal_beyond_the_arms_reach_is_clamped_and_counted():
         goal = p._stick_goal("l", start)
         assert p.clamps == {"reach": 1, "advance": 0} and p.plan.clamped == 1
         assert start[0] < goal[0] < float(p.ankle_xy(p.front_foot())[0]) + 0.8
-        upper, lower = walker.body.arm_reach_m
-        reach = math.sqrt(upper**2 + lower**2 + 2 * upper * lower * math.cos(cfg.patient.stick_reach_elbow_rad))
+        reach = walker.body.arm_span_m(cfg.patient.stick_reach_elbow_rad)
         tip = goal + np.array([0.0, 0.0, cfg.model.sticks.tip_radius_m])
         assert np.linalg.norm(tip - p.shoulder("l")) == pytest.approx(reach, abs=1e-6)
         p.plan.intention = dataclasses.replace(p.plan.intention, ahead_m=-0.5)  # behind where the stick stands: it still moves on
