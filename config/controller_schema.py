@@ -204,7 +204,7 @@ class GaitConfig:
     stick_moves: Literal["both", "stance_side"] = field_spec(
         doc="The sticks the patient moves in each double support: both, or the one on the next swing's stance side "
             "(the four-point crutch gait). It is the patient's trained pattern: set it as the patient walks.")
-    lean_stall_m: float = field_spec(doc="... and the lean over: the swing foot free, the CoM at the patient's limit less this, or no farther forward by this ...", unit="m", min=0.001, max=0.1)
+    lean_stall_m: float = field_spec(doc="... and the lean over: the CoM no farther forward by this ...", unit="m", min=0.001, max=0.1)
     lean_stall_s: float = field_spec(doc="... in this long, once the lean has moved this far forward ...", unit="s", min=0.1, max=10.0)
     lean_start_s: float = field_spec(doc="... or in this long before (the body, still coming back from the stick moves, takes up to half a second to follow the lean).", unit="s", min=0.1, max=10.0)
     stick_lifted_n: float = field_spec(doc="A stick whose filtered force stays below this ...", unit="N", min=0.0, max=100.0)
@@ -220,8 +220,6 @@ class GaitConfig:
     height_speed_m_s: float = field_spec(doc="Speed at which the hips lower or rise.", unit="m/s", min=0.005, max=0.5)
     foot_contact_n: float = field_spec(doc="A foot carrying this is on the floor (a swing foot: has landed).", unit="N", min=1.0, max=800.0)
     landing_fraction: float = field_spec(doc="A landing counts after this fraction of the swing's duration.", min=0.1, max=1.0)
-    landing_height_m: float = field_spec(doc="... with its ankle less than this above the stance ankle (or the DMP at its end).",
-                                         unit="m", min=0.0, max=0.2)
     landing_blend_s: float = field_spec(doc="A landed foot takes its share of the body's load over this time.", unit="s", min=0.0, max=2.0)
     landing_depth_m: float = field_spec(doc="The swing's goal lies this far below the stance ankle.", unit="m", min=0.0, max=0.05)
     swing_timeout_s: float = field_spec(doc="A swing with no landing ends this long after its duration.", unit="s", min=0.0, max=5.0)

@@ -250,9 +250,6 @@ class GaitConfig:
         doc="Before a stick lifts the CoM stays at least this far ahead of the ankles' midpoint, leaning on the other stick "
             "(behind it the body rocks backward off its passive ankles, and sticks only push).", unit="m", min=0.0, max=0.2)
     shift_speed_m_s: float = field_spec(doc="Speed of the patient's shift before a stick lifts.", unit="m/s", min=0.005, max=1.0)
-    push_gain_n_m_s: float = field_spec(doc="The patient pushes this much harder per metre and second its CoM stays off its target ...",
-                                        unit="N/(m.s)", min=0.0, max=20000.0)
-    push_max_n: float = field_spec(doc="... up to this.", unit="N", min=0.0, max=1000.0)
     shift_min_s: float = field_spec(doc="Shortest shift before a stick lifts.", unit="s", min=0.0, max=5.0)
     shift_still_speed_m_s: float = field_spec(doc="The CoM must be slower than this before a stick lifts.", unit="m/s", min=0.0, max=1.0)
     trunk_pitch_rad: float = field_spec(doc="Trunk pitch the patient keeps.", unit="rad", min=-0.5, max=0.8)

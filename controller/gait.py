@@ -7,7 +7,8 @@ of the body's weight and the moment that holds the trunk; with passive ankles on
 moves the body fore-aft). The planner keeps a CoM goal, fore-aft over the planted foot that
 carries the next swing. One gait cycle, per leg (docs/CONTROLLER.md):
 
-1. **Double support, weight shift.** Until both sticks have moved, the CoM goal moves (at
+1. **Double support, weight shift.** Until the sticks of this double support have moved (the next
+   stance foot's in the four-point gait, both with ``stick_moves: both``), the CoM goal moves (at
    ``shift_speed``) into the window where the next stick may lift: on the support that stays (both
    feet, each ankle widened by half the sole across, and the other stick's tip) ``shift_margin``
    inside its edges, and ``balance_margin`` ahead of the ankles' midpoint (behind it the body rocks
@@ -18,7 +19,7 @@ carries the next swing. One gait cycle, per leg (docs/CONTROLLER.md):
    ``stick_placed_n``) since the last swing started (wherever it went: a stick put back where it
    stood is the patient's move too, and a patient who feels the foot down before the landing is
    detected may already lift one).
-2. **Double support, lean.** With both sticks moved, the goal moves forward at ``lean_speed``, at
+2. **Double support, lean.** With the sticks moved, the goal moves forward at ``lean_speed``, at
    most ``lean_lead`` ahead of the CoM (and not while a stick carries ``comfort_stick_n``): the
    legs lean the body onto the sticks until the patient stops it, pushing back on its sticks
    (their fore-aft pushes are left to act). The lean is over when the CoM gets no farther forward
@@ -415,10 +416,7 @@ class GaitPlanner:
         self.ankle_cmd[leg] = (float(anchor[0] + xz[0]), float(anchor[2] + xz[1]))
         self._carry(est, m, (stance,), com_x)
         loaded = float(m.heel_force_n[leg] + m.toe_force_n[leg]) > p.foot_contact_n
-        # a foot that touches with its toe while its ankle is still high has not landed yet: the
-        # leg would push it down from there, and back under the hips
-        low = float(est.ankles[leg][2] - est.ankles[stance][2]) < p.landing_height_m or self.swing_t >= tau
-        landed = loaded and low and self.swing_t >= p.landing_fraction * tau
+        landed = loaded and self.swing_t >= p.landing_fraction * tau
         done = landed or self.swing_t >= tau + p.swing_timeout_s
         if done:
             # The landed leg becomes a stance leg: its commanded ankle is re-expressed with the trunk

@@ -99,7 +99,6 @@ class Patient:
         self.clamps = {"reach": 0, "advance": 0}  # stick goals clamped, by reason, over the walk
         self.last = BalanceResult()
         self.last_landed: str | None = None
-        self.push = np.zeros(2)  # N: how much harder the patient pushes toward a CoM target it does not reach
 
     # -- geometry -----------------------------------------------------------------------------
 
@@ -135,7 +134,6 @@ class Patient:
 
     def _set_phase(self, phase: Phase) -> None:
         self.phase, self.phase_t = phase, 0.0
-        self.push[:] = 0.0
 
     def start(self) -> None:
         """Take the standing posture as the goals."""
@@ -268,9 +266,6 @@ class Patient:
                 lead = float(com[0]) + g.lean_lead_m
                 self.com_target[0] = min(self.com_target[0] + g.lean_speed_m_s * dt, self.lean_goal_x, max(lead, self.com_target[0]))
         self.com_target[1] += clamp(-self.com_target[1], -g.lean_speed_m_s * dt, g.lean_speed_m_s * dt)
-        # a person who does not get where it wants pushes harder (an integral of the CoM's error,
-        # within push_max_n); every phase starts afresh
-        self.push = np.clip(self.push + g.push_gain_n_m_s * (self.com_target - com[:2]) * dt, -g.push_max_n, g.push_max_n)
         self._update_posture()
 
     def _update_posture(self) -> None:
@@ -378,7 +373,6 @@ class Patient:
                 min_n = g.swing_trigger_stick_n if self.phase is Phase.SWING else (g.stick_planted_n if self.phase is Phase.LEAN else None)
                 contacts.append(Contact(f"tip_{t}", self.arms.forearm_idx[t], tip, cost, axis=axis, spread=g.strut_spread, min_n=min_n))
         wrench = self.wrench()
-        wrench[:2] += self.push
         forces, residual = distribute(wrench, kin.com, contacts, mu=0.5, min_normal_n=g.min_contact_n,
                                       weights=WRENCH_WEIGHTS, known_moment=self.ankle_spring_moment())
         self.last = BalanceResult(contacts, forces, residual, wrench)

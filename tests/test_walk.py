@@ -201,8 +201,8 @@ def test_a_stalled_walk_says_where_the_patient_stood(capsys):
     the patient says where its CoM is against the window its first stick lift waits for."""
     assert main(["walk", "--steps", "1", "--max-time", "0.7", "--quiet"]) == 0
     out = capsys.readouterr().out
-    assert ("no fall (stalled: the patient in its shift for 0.1 s, CoM at 0.0604 m, "
-            "a stick may lift with it between 0.0131 and 0.1014 m)") in out
+    assert ("no fall (stalled: the patient in its shift for 0.1 s, CoM at 0.0614 m, "
+            "a stick may lift with it between 0.0144 and 0.1022 m)") in out
 
 
 def test_a_walk_that_the_controller_holds_ends_there_with_the_cause():
@@ -296,7 +296,7 @@ def test_aider_exo_walk_prints_its_summary_as_json(capsys, tmp_path):
     assert s["cycles_asked"] == 1 and s["cycles_completed"] == 1 and s["steps_completed"] == 2
     assert s["falls"] == 0 and s["fall_reason"] is None and not s["stalled"]
     assert 0 < s["mean_arm_torque_nm"] < 2 * (80 + 60 + 60)  # six arm joints, each within its strength
-    assert s["mode"] == "sagittal" and s["seed"] == 0 and s["policy"] == "compensated" and s["bus"] == "virtual (in-process)"
+    assert s["mode"] == "full3d" and s["seed"] == 0 and s["policy"] == "compensated" and s["bus"] == "virtual (in-process)"
     assert s["mean_stick_force_n"] > 0 and s["x_ratio_mae"] <= GOAL_RATIO_MAE and s["x_ratio_samples"] > 0
     assert s["receiver"]["rejected"] == 0 and s["receiver"]["lost"] == 0
     assert len(s["steps"]) == 2 and all(step["landed"] for step in s["steps"])

@@ -35,12 +35,14 @@ class Plan:
     compare: bool = False
     compare_theta: tuple[float, float] | None = None  # None with learning: the learned one
     compare_walks: int = 10
-    mode: str = "sagittal"
+    mode: str | None = None  # None: the configuration's sim.mode
     workers: int = 2
     executor: str = "local"  # or "ray" (tools.experiment.cluster)
     address: str | None = None  # the Ray cluster's; None: a local Ray instance
 
     def __post_init__(self) -> None:
+        if self.mode is None:
+            self.mode = self.cfg.sim.mode
         for s in self.starts:
             if s not in STARTS:
                 raise ExperimentError(f"unknown start {s!r}: the paper's are {', '.join(STARTS)}")
