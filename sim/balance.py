@@ -57,15 +57,19 @@ def pyramid_edges(mu: float, lateral: bool = True) -> np.ndarray:
     return edges
 
 
+_UP = np.array([0.0, 0.0, 1.0])
+_UP.flags.writeable = False
+
+
 def strut_edges(axis: np.ndarray, spread: float) -> np.ndarray:
     """(4, 3) edges of a pyramid of half-width ``spread`` about ``axis`` (pointing up), each scaled
     to a unit vertical component like :func:`pyramid_edges`, so an edge's amount is its load."""
     a = np.asarray(axis, dtype=float)
     a = a / np.linalg.norm(a)
-    across = np.cross(a, (0.0, 0.0, 1.0))
+    across = cross(a, _UP)
     norm = np.linalg.norm(across)
     across = across / norm if norm > 1e-9 else np.array([1.0, 0.0, 0.0])
-    up = np.cross(across, a)
+    up = cross(across, a)
     edges = np.array([a + spread * across, a - spread * across, a + spread * up, a - spread * up])
     return edges / edges[:, 2:3]
 

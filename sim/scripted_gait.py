@@ -37,7 +37,7 @@ from config.sim_schema import GaitConfig, SimConfig
 from sim.actuation import Mode
 from sim.balance import distribute
 from sim.kinematics import Kinematics
-from sim.linalg import clamp, minimum_jerk
+from sim.linalg import clamp, cross, minimum_jerk
 from sim.model import EXO_JOINTS, leg_ik
 from sim.patient import OTHER, SIDES, WRENCH_WEIGHTS, Patient, Phase
 from sim.sensors import Reading, rpy_from_matrix
@@ -170,7 +170,7 @@ class ScriptedGait:
             _, rot = w.link_frame(f"forearm_{side}")
             up = np.array([0.0, 0.0, float(reading.stick_force_n[i]) * rot[2, 2]])
             wrench[:3] -= up
-            wrench[3:] -= np.cross(p.tip_point(side) - com, up)
+            wrench[3:] -= cross(p.tip_point(side) - com, up)
         feet = p.foot_contacts()
         forces, _ = distribute(wrench, com, feet, mu=0.5, min_normal_n=self.s.min_contact_n, weights=WRENCH_WEIGHTS,
                                known_moment=p.ankle_spring_moment())

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from config.sim_schema import FootConfig
-from sim.truth import convex_hull_2d, pivot_polygon, stability_margin
+from sim.truth import convex_hull_2d, pivot_polygon
 
 
 def lift_window(ankles: np.ndarray, stays: np.ndarray, com_y: float, foot: FootConfig, *, shift_margin_m: float,
@@ -20,8 +20,12 @@ def lift_window(ankles: np.ndarray, stays: np.ndarray, com_y: float, foot: FootC
     balance = float(ankles[:, 0].mean()) + balance_margin_m
     poly = convex_hull_2d(pivot_polygon(ankles, stays, ankle_halfwidth=foot.half_width_m))
     far = max([ankles[:, 0].max(), *stays[:, 0]])
+    # the patient judges its place on a grid of 81 points from behind its heels to the farthest
+    # support: those at least shift_margin_m inside the polygon (a convex polygon shrunk by the
+    # margin: an interval of the line)
     xs = np.linspace(float(ankles[:, 0].min()) - foot.heel_back_m, far, 81)
-    ok = np.array([stability_margin(poly, (x, com_y)) >= shift_margin_m for x in xs])
+    inside_lo, inside_hi = window_on_line(poly, com_y, shift_margin_m)
+    ok = (xs >= inside_lo) & (xs <= inside_hi)
     if len(stays) == 1 and len(ankles) == 2:
         # the arm that stays takes what the lift hands it: its share of the weight (the tip's
         # barycentric coordinate over the two ankles and the tip) at most its comfort
@@ -33,6 +37,26 @@ def lift_window(ankles: np.ndarray, stays: np.ndarray, com_y: float, foot: FootC
     if not len(held):
         return math.inf, -math.inf
     return max(balance, float(held.min())), float(held.max())
+
+
+def window_on_line(hull: np.ndarray, y: float, margin: float) -> tuple[float, float]:
+    """(lo, hi) of the x on the line at ``y`` whose points lie at least ``margin`` (> 0) inside every
+    edge of the counter-clockwise convex ``hull`` (m, 2): for a convex polygon the points whose
+    :func:`sim.truth.stability_margin` is at least ``margin``. (inf, -inf): none (fewer than three
+    vertices have no inside)."""
+    if len(hull) < 3:
+        return math.inf, -math.inf
+    edge = np.concatenate((hull[1:], hull[:1])) - hull
+    normal = np.column_stack([edge[:, 1], -edge[:, 0]]) / np.hypot(edge[:, 0], edge[:, 1])[:, None]  # outward
+    # inside by the margin: normal . ((x, y) - vertex) <= -margin, for every edge
+    rhs = (normal * hull).sum(axis=1) - normal[:, 1] * y - margin
+    nx = normal[:, 0]
+    if (rhs[np.abs(nx) < 1e-12] < 0.0).any():
+        return math.inf, -math.inf
+    upper, lower = nx > 1e-12, nx < -1e-12
+    lo = float((rhs[lower] / nx[lower]).max()) if lower.any() else -math.inf
+    hi = float((rhs[upper] / nx[upper]).min()) if upper.any() else math.inf
+    return (lo, hi) if lo <= hi else (math.inf, -math.inf)
 
 
 def swing_support(ankle_xy: np.ndarray, foot: FootConfig, tips: np.ndarray) -> np.ndarray:

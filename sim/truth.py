@@ -157,18 +157,28 @@ def pivot_polygon(ankle_xy, tip_xy, ankle_halfwidth: float = 0.0) -> np.ndarray:
 
 def polygon_area(polygon) -> float:
     """Area of the convex hull of ``polygon`` (shape (m, 2)); 0 for m < 3. Always >= 0."""
-    hull = convex_hull_2d(polygon)
+    return _hull_area(convex_hull_2d(polygon))
+
+
+def _next(a: np.ndarray) -> np.ndarray:
+    """Each vertex's successor around the polygon (``np.roll(a, -1, axis=0)``, without its
+    argument handling)."""
+    return np.concatenate((a[1:], a[:1]))
+
+
+def _hull_area(hull: np.ndarray) -> float:
+    """Shoelace area of a counter-clockwise hull (:func:`convex_hull_2d`'s output)."""
     if len(hull) < 3:
         return 0.0
     x, y = (hull - hull[0]).T
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+    return 0.5 * float(np.dot(x, _next(y)) - np.dot(_next(x), y))
 
 
 def _is_degenerate(hull: np.ndarray) -> bool:
     if len(hull) < 3:
         return True
     span = float(np.ptp(hull, axis=0).max())
-    return polygon_area(hull) <= _REL_EPS * span * span
+    return _hull_area(hull) <= _REL_EPS * span * span
 
 
 def polygon_centroid(polygon) -> np.ndarray:
@@ -183,7 +193,7 @@ def polygon_centroid(polygon) -> np.ndarray:
     if _is_degenerate(hull):
         raise ValueError("the centroid of a polygon with zero area is undefined")
     rel = hull - hull[0]  # relative coordinates keep the shoelace sums well conditioned
-    nxt = np.roll(rel, -1, axis=0)
+    nxt = _next(rel)
     w = rel[:, 0] * nxt[:, 1] - nxt[:, 0] * rel[:, 1]
     return hull[0] + ((rel + nxt) * w[:, None]).sum(axis=0) / (3.0 * w.sum())
 
@@ -191,7 +201,7 @@ def polygon_centroid(polygon) -> np.ndarray:
 def _boundary_distance(hull: np.ndarray, p: np.ndarray) -> float:
     """Euclidean distance from p to the closed polyline through the hull vertices."""
     a = hull
-    ab = np.roll(hull, -1, axis=0) - a
+    ab = _next(hull) - a
     len2 = (ab * ab).sum(axis=1)
     t = np.divide(((p - a) * ab).sum(axis=1), len2, out=np.zeros_like(len2), where=len2 > 0.0)
     nearest = a + np.clip(t, 0.0, 1.0)[:, None] * ab
@@ -222,7 +232,7 @@ def stability_margin(polygon, point) -> float:
     distance = _boundary_distance(hull, p)
     if _is_degenerate(hull):
         return -distance
-    nxt = np.roll(hull, -1, axis=0)
+    nxt = _next(hull)
     turns = (nxt[:, 0] - hull[:, 0]) * (p[1] - hull[:, 1]) - (nxt[:, 1] - hull[:, 1]) * (p[0] - hull[:, 0])
     return distance if (turns >= 0.0).all() else -distance
 
@@ -298,7 +308,7 @@ def extent_on_line(polygon, point, heading=(1.0, 0.0)) -> tuple[float, float]:
     lateral = np.array([-h[1], h[0]])
     d = (hull - p) @ lateral  # signed lateral offset of each vertex from the line
     s = hull @ h  # position of each vertex along the heading
-    d2, s2 = np.roll(d, -1), np.roll(s, -1)
+    d2, s2 = _next(d), _next(s)
     crossing = np.sign(d) * np.sign(d2) < 0.0  # signs, not d * d2: that product underflows for tiny offsets
     hits = np.concatenate([s[d == 0.0], (s + d / np.where(crossing, d - d2, 1.0) * (s2 - s))[crossing]])
     if len(hits) == 0:
@@ -331,7 +341,7 @@ def radial_ratio(polygon, point) -> float:
     if r == 0.0:
         return 0.0
     u = (c - g) / r
-    edges = np.roll(hull, -1, axis=0) - hull
+    edges = _next(hull) - hull
     normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1)  # outward for a CCW polygon
     along = normals @ u
     slack = -((g - hull) * normals).sum(axis=1)  # > 0: g is strictly inside

@@ -90,6 +90,17 @@ def test_two_gait_cycles_walk_without_a_fall_and_estimate_the_com_ratio_within_t
     assert summary["cycles_completed"] == 2 and summary["steps_completed"] == 4 and summary["falls"] == 0
 
 
+def test_three_gait_cycles_in_3d_walk_onto_the_sticks_in_the_papers_regime():
+    """Lock-step, in the default mode: the four-point patient in 3-D walks its cycles leaning onto its
+    sticks as the paper's does (both sticks together 250-500 N, Figs. 11-12; X_CoM/X_SP at the
+    swings' start past the middle of the swing's support)."""
+    outcome = walk(BASE, cycles=3, seed=0, mode="full3d")
+    assert_walked(outcome, 3)
+    assert outcome.ratio_mae <= GOAL_RATIO_MAE
+    assert 250.0 <= 2 * outcome.mean_stick_force_n <= 500.0
+    assert 0.5 <= float(np.median([s.x_ratio for s in outcome.landed])) <= 0.9
+
+
 def test_a_walk_is_deterministic_for_its_seed(walked, one_cycle):
     outcome, _, _ = walked
     # The same seed: the same walk, step for step and tick for tick (here: the one-cycle walk is
