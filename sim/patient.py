@@ -40,7 +40,7 @@ from sim.kinematics import Kinematics
 from sim.linalg import clamp
 from sim.sensors import Reading, rpy_from_matrix
 from sim.support import lift_window, swing_support
-from sim.truth import extent_on_line, pivot_polygon, stability_margin
+from sim.truth import extent_on_line, pivot_margin
 from sim.world import GRAVITY, World
 
 OTHER = {"l": "r", "r": "l"}
@@ -122,13 +122,13 @@ class Patient:
         (by default every planted tip): the pivot polygon in 3-D, its fore-aft extent in the
         sagittal mode, where the plane spring holds the trunk laterally."""
         tips = [s for s in SIDES if self.planted[s]] if tips is None else tips
-        ankles = np.array([self.ankle_xy(s) for s in SIDES if self.stance[s]]).reshape(-1, 2)
-        tip_xy = np.array([self.tip_point(s)[:2] for s in tips]).reshape(-1, 2)
-        com = self.kin.com[:2]
+        ankles = [tuple(self.ankle_xy(s).tolist()) for s in SIDES if self.stance[s]]
+        tip_xy = [tuple(self.tip_point(s)[:2].tolist()) for s in tips]
+        com = self.kin.com[:2].tolist()
         if self.cfg.mode == "sagittal":
-            xs = np.concatenate([ankles[:, 0], tip_xy[:, 0]])
-            return float(min(com[0] - xs.min(), xs.max() - com[0]))
-        return float(stability_margin(pivot_polygon(ankles, tip_xy, ankle_halfwidth=self.cfg.model.foot.half_width_m), com))
+            xs = [p[0] for p in ankles + tip_xy]
+            return float(min(com[0] - min(xs), max(xs) - com[0])) if xs else -math.inf
+        return pivot_margin(ankles, tip_xy, self.cfg.model.foot.half_width_m, com)
 
     # -- the gait cycle -------------------------------------------------------------------------
 

@@ -26,6 +26,7 @@ __all__ = [
     "polygon_area",
     "polygon_centroid",
     "stability_margin",
+    "pivot_margin",
     "fore_aft_ratio",
     "fore_aft_ratio_at_lateral",
     "extent_on_line",
@@ -92,10 +93,15 @@ def convex_hull_2d(points) -> np.ndarray:
         what exists: ``m = 0`` (no points), ``m = 1`` (all points equal) or ``m = 2`` (all
         points collinear: the two end points). Such polygons have zero area.
     """
-    # Sorted unique points as plain tuples: for the handful of contacts this is the fast path.
-    pts = sorted(set(map(tuple, _points(points, "points").tolist())))  # by x, then y
+    return np.array(_hull(map(tuple, _points(points, "points").tolist())), dtype=float).reshape(-1, 2)
+
+
+def _hull(points) -> list[tuple[float, float]]:
+    """:func:`convex_hull_2d` of plain (x, y) tuples, as tuples: for the handful of contacts of a
+    tick plain floats are the fast path."""
+    pts = sorted(set(points))  # by x, then y
     if len(pts) <= 2:
-        return np.array(pts, dtype=float).reshape(-1, 2)
+        return pts
 
     def chain(seq: list[tuple[float, float]]) -> list[tuple[float, float]]:
         out: list[tuple[float, float]] = []
@@ -106,7 +112,7 @@ def convex_hull_2d(points) -> np.ndarray:
         return out
 
     lower, upper = chain(pts), chain(pts[::-1])
-    return np.array(lower[:-1] + upper[:-1], dtype=float)
+    return lower[:-1] + upper[:-1]
 
 
 def support_polygon(contact_points_xy) -> np.ndarray:
@@ -198,16 +204,6 @@ def polygon_centroid(polygon) -> np.ndarray:
     return hull[0] + ((rel + nxt) * w[:, None]).sum(axis=0) / (3.0 * w.sum())
 
 
-def _boundary_distance(hull: np.ndarray, p: np.ndarray) -> float:
-    """Euclidean distance from p to the closed polyline through the hull vertices."""
-    a = hull
-    ab = _next(hull) - a
-    len2 = (ab * ab).sum(axis=1)
-    t = np.divide(((p - a) * ab).sum(axis=1), len2, out=np.zeros_like(len2), where=len2 > 0.0)
-    nearest = a + np.clip(t, 0.0, 1.0)[:, None] * ab
-    return float(np.hypot(*(nearest - p).T).min())
-
-
 def stability_margin(polygon, point) -> float:
     """Static stability margin (McGhee & Frank, 1968).
 
@@ -229,12 +225,38 @@ def stability_margin(polygon, point) -> float:
     hull, p = convex_hull_2d(polygon), _vec(point, 2, "point")
     if len(hull) == 0:
         return -math.inf
-    distance = _boundary_distance(hull, p)
-    if _is_degenerate(hull):
-        return -distance
-    nxt = _next(hull)
-    turns = (nxt[:, 0] - hull[:, 0]) * (p[1] - hull[:, 1]) - (nxt[:, 1] - hull[:, 1]) * (p[0] - hull[:, 0])
-    return distance if (turns >= 0.0).all() else -distance
+    return _margin(hull.tolist(), float(p[0]), float(p[1]), _is_degenerate(hull))
+
+
+def pivot_margin(ankles_xy: list[tuple[float, float]], tips_xy: list[tuple[float, float]], ankle_halfwidth: float,
+                 point: tuple[float, float]) -> float:
+    """:func:`stability_margin` of ``point`` in :func:`pivot_polygon` ``(ankles_xy, tips_xy,
+    ankle_halfwidth)``, all plain floats: the per-tick ground truth (a handful of vertices, where
+    numpy's per-call cost dominates)."""
+    verts = _hull([(x, y + s * ankle_halfwidth) for x, y in ankles_xy for s in (-1.0, 1.0)] + list(tips_xy))
+    if not verts:
+        return -math.inf
+    degenerate = len(verts) < 3
+    if not degenerate:
+        xs, ys = [v[0] for v in verts], [v[1] for v in verts]
+        span = max(max(xs) - min(xs), max(ys) - min(ys))
+        x0, y0 = verts[0]
+        area = 0.5 * sum((ax - x0) * (by - y0) - (bx - x0) * (ay - y0) for (ax, ay), (bx, by) in zip(verts, verts[1:] + verts[:1]))
+        degenerate = area <= _REL_EPS * span * span
+    return _margin(verts, float(point[0]), float(point[1]), degenerate)
+
+
+def _margin(verts: list, px: float, py: float, degenerate: bool) -> float:
+    """The signed distance of (px, py) to the closed polyline ``verts`` (a counter-clockwise hull):
+    positive inside, never positive for a ``degenerate`` hull."""
+    distance, inside = math.inf, True
+    for (ax, ay), (bx, by) in zip(verts, verts[1:] + verts[:1]):
+        ex, ey = bx - ax, by - ay
+        len2 = ex * ex + ey * ey
+        t = min(max(((px - ax) * ex + (py - ay) * ey) / len2, 0.0), 1.0) if len2 > 0.0 else 0.0
+        distance = min(distance, math.hypot(ax + t * ex - px, ay + t * ey - py))
+        inside = inside and ex * (py - ay) - ey * (px - ax) >= 0.0
+    return -distance if degenerate or not inside else distance
 
 
 def fore_aft_ratio(polygon, point, heading=(1.0, 0.0)) -> float:
