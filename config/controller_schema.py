@@ -112,6 +112,8 @@ class BodyConfig:
     foot_heel_m: float = field_spec(doc="Heel behind the ankle joint.", unit="m", min=0.0, max=0.2)
     foot_toe_m: float = field_spec(doc="Toe ahead of the ankle joint.", unit="m", min=0.05, max=0.35)
     foot_half_width_m: float = field_spec(doc="Half the sole's width.", unit="m", min=0.02, max=0.1)
+    ankle_stiffness_nm_rad: float = field_spec(doc="The exoskeleton's ankle spring.", unit="N.m/rad", min=0.0, max=2000.0)
+    ankle_rest_rad: float = field_spec(doc="Its rest angle (dorsiflexion positive).", unit="rad", min=-0.5, max=0.6)
     trunk_kg: float = field_spec(doc="Trunk, head and arms' share carried by the trunk, with the backpack.", unit="kg", min=5.0, max=200.0)
     trunk_com_xz_m: tuple[float, float] = field_spec(doc="Trunk CoM from the hip midpoint (x, z).", unit="m", min=-0.5, max=1.0)
     thigh_kg: float = field_spec(doc="One thigh with its exoskeleton segment.", unit="kg", min=1.0, max=40.0)
@@ -126,6 +128,7 @@ class BodyConfig:
     forearm_com_m: float = field_spec(doc="Forearm-and-stick CoM from the elbow.", unit="m", min=0.0, max=1.5)
     stick_loaded_n: float = field_spec(doc="A stick carrying more than this is on the ground.", unit="N", min=1.0, max=500.0)
     foot_loaded_n: float = field_spec(doc="A foot whose heel and toe carry more than this is on the ground.", unit="N", min=1.0, max=800.0)
+    foot_flat_n: float = field_spec(doc="A loaded foot whose heel and toe each carry more than this is flat: the floor lies ankle height below its ankle.", unit="N", min=1.0, max=800.0)
     min_support_m: float = field_spec(
         doc="X_CoM/X_SP is undefined (nan) for a support polygon shorter than this fore-aft (feet side by side).",
         unit="m", min=0.01, max=0.5,
@@ -187,32 +190,37 @@ class GaitConfig:
     """The legs through the gait cycle (controller/gait.py, docs/CONTROLLER.md): the weight shift
     and lean of double support, the stick moves that gate them, and the end of the swing."""
 
-    shift_margin_m: float = field_spec(doc="Weight shift: the CoM at least this far inside the ankles' span.", unit="m", min=0.0, max=0.2)
-    shift_time_s: float = field_spec(doc="Weight shift: time constant of the CoM's approach.", unit="s", min=0.02, max=5.0)
-    shift_speed_m_s: float = field_spec(doc="Weight shift: top speed of the hips.", unit="m/s", min=0.005, max=0.5)
-    lean_speed_m_s: float = field_spec(doc="Lean: speed of the hips toward the patient's lean goal.", unit="m/s", min=0.005, max=0.5)
-    lean_past_goal_m: float = field_spec(doc="The patient lets the lean go on past its goal by up to this while the swing foot is not free.", unit="m", min=0.0, max=0.2)
-    foot_free_n: float = field_spec(doc="The swing foot is free once it carries less than this ...", unit="N", min=0.0, max=800.0)
-    foot_free_s: float = field_spec(doc="... for this long.", unit="s", min=0.0, max=2.0)
-    lean_behind_tips_m: float = field_spec(doc="The patient's lean goal: the CoM this far behind the mean stick tip.", unit="m", min=0.0, max=0.8)
-    lean_over_stance_m: float = field_spec(doc="... and at least this far past the stance ankle (the body over the foot that will carry the swing).", unit="m", min=0.0, max=0.2)
+    shift_margin_m: float = field_spec(doc="Weight shift: the CoM at least this far inside the support that stays when a stick lifts.",
+                                       unit="m", min=0.0, max=0.2)
+    balance_margin_m: float = field_spec(doc="Weight shift: the CoM at least this far ahead of the ankles' midpoint.", unit="m", min=0.0, max=0.2)
+    shift_speed_m_s: float = field_spec(doc="Weight shift: top speed of the CoM goal.", unit="m/s", min=0.005, max=0.5)
+    lean_speed_m_s: float = field_spec(doc="Lean: speed of the CoM goal toward the sticks.", unit="m/s", min=0.005, max=0.5)
+    lean_lead_m: float = field_spec(doc="Lean: the CoM goal at most this far ahead of the CoM.", unit="m", min=0.0, max=0.3)
+    lean_over_stance_m: float = field_spec(doc="A lean that stalls with the CoM less than half this past the stance ankle is not over.",
+                                           unit="m", min=0.0, max=0.2)
     comfort_stick_n: float = field_spec(doc="The lean pauses while a stick carries this.", unit="N", min=10.0, max=1000.0)
     swing_stick_n: float = field_spec(doc="A step is ready with both sticks carrying this.", unit="N", min=1.0, max=500.0)
-    tips_ahead_m: float = field_spec(doc="... both tips this far ahead of the front ankle ...", unit="m", min=0.0, max=0.6)
-    lean_stall_m: float = field_spec(doc="... and the lean over: the swing foot free, the CoM at the patient's limit less this, or no farther forward by this ...", unit="m", min=0.001, max=0.1)
+    tips_ahead_m: float = field_spec(doc="... the tips' midpoint this far ahead of the front ankle ...", unit="m", min=0.0, max=0.6)
+    stick_moves: Literal["both", "stance_side"] = field_spec(
+        doc="The sticks the patient moves in each double support: both, or the one on the next swing's stance side "
+            "(the four-point crutch gait). It is the patient's trained pattern: set it as the patient walks.")
+    lean_stall_m: float = field_spec(doc="... and the lean over: the CoM no farther forward by this ...", unit="m", min=0.001, max=0.1)
     lean_stall_s: float = field_spec(doc="... in this long, once the lean has moved this far forward ...", unit="s", min=0.1, max=10.0)
     lean_start_s: float = field_spec(doc="... or in this long before (the body, still coming back from the stick moves, takes up to half a second to follow the lean).", unit="s", min=0.1, max=10.0)
     stick_lifted_n: float = field_spec(doc="A stick whose filtered force stays below this ...", unit="N", min=0.0, max=100.0)
     stick_lift_s: float = field_spec(doc="... this long has been lifted.", unit="s", min=0.02, max=2.0)
-    stick_placed_n: float = field_spec(doc="A lifted stick carrying this again is planted ...", unit="N", min=1.0, max=500.0)
-    stick_moved_m: float = field_spec(doc="... and has moved when its tip is this much farther forward than at the last landing.", unit="m", min=0.0, max=0.5)
+    stick_placed_n: float = field_spec(doc="A lifted stick carrying this again has moved.", unit="N", min=1.0, max=500.0)
     stick_filter_s: float = field_spec(doc="Time constant of the stick-force filter of the stick-move detection.", unit="s", min=0.0, max=1.0)
-    max_lead_m: float = field_spec(doc="A stance ankle's command leads its measured place by at most this fore-aft.", unit="m", min=0.001, max=0.1)
+    max_lead_m: float = field_spec(doc="The hips are commanded at most this far fore-aft from where they are.", unit="m", min=0.001, max=0.1)
+    hip_advance_fraction: float = field_spec(doc="Swing: the stance leg carries the CoM goal this share of the step length forward.",
+                                             min=0.0, max=1.0)
+    velocity_filter_s: float = field_spec(doc="Time constant of the CoM's and the hips' velocity filters.", unit="s", min=0.0, max=1.0)
     max_target_step_rad: float = field_spec(doc="No joint target moves more than this per tick (below the envelope's bound).", unit="rad", min=0.001, max=0.5)
     reach_margin_m: float = field_spec(doc="Stance legs stay this much short of full reach (the hips lower).", unit="m", min=0.0, max=0.1)
     height_speed_m_s: float = field_spec(doc="Speed at which the hips lower or rise.", unit="m/s", min=0.005, max=0.5)
     foot_contact_n: float = field_spec(doc="A foot carrying this is on the floor (a swing foot: has landed).", unit="N", min=1.0, max=800.0)
     landing_fraction: float = field_spec(doc="A landing counts after this fraction of the swing's duration.", min=0.1, max=1.0)
+    landing_blend_s: float = field_spec(doc="A landed foot takes its share of the body's load over this time.", unit="s", min=0.0, max=2.0)
     landing_depth_m: float = field_spec(doc="The swing's goal lies this far below the stance ankle.", unit="m", min=0.0, max=0.05)
     swing_timeout_s: float = field_spec(doc="A swing with no landing ends this long after its duration.", unit="s", min=0.0, max=5.0)
     placement_gain: float = field_spec(
@@ -224,6 +232,21 @@ class GaitConfig:
     def validate(self) -> None:
         if self.stick_placed_n <= self.stick_lifted_n:
             fail("stick_placed_n", f"must be above stick_lifted_n {self.stick_lifted_n}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class BalanceConfig:
+    """The wrench the stance legs' torque feed-forward asks for at the CoM (controller/balance.py)."""
+
+    com_stiffness_n_m: float = field_spec(doc="Fore-aft spring toward the gait's CoM goal.", unit="N/m", min=0.0, max=20000.0)
+    com_damping_ns_m: float = field_spec(doc="Fore-aft damping of the CoM over the floor.", unit="N.s/m", min=0.0, max=5000.0)
+    height_stiffness_n_m: float = field_spec(doc="Spring of the hips toward the stance height.", unit="N/m", min=0.0, max=50000.0)
+    height_damping_ns_m: float = field_spec(doc="Damping of the hips' height.", unit="N.s/m", min=0.0, max=5000.0)
+    tilt_stiffness_nm_rad: float = field_spec(doc="Roll and pitch spring of the trunk toward upright and its pitch goal.", unit="N.m/rad",
+                                              min=0.0, max=20000.0)
+    tilt_damping_nms_rad: float = field_spec(doc="Roll and pitch damping of the trunk (IMU rates).", unit="N.m.s/rad", min=0.0, max=2000.0)
+    friction: float = field_spec(doc="Friction coefficient the distribution allows a foot.", min=0.05, max=1.5)
+    min_foot_n: float = field_spec(doc="Smallest load the distribution gives a stance foot's contact.", unit="N", min=0.0, max=200.0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -244,6 +267,7 @@ class ControllerConfig:
     safety: SafetyConfig = field_spec(doc="Fault detection budgets (docs/SAFETY.md).")
     body: BodyConfig = field_spec(doc="The patient-plus-exoskeleton model of the state estimator.")
     gait: GaitConfig = field_spec(doc="The legs through the gait cycle.")
+    balance: BalanceConfig = field_spec(doc="The stance legs' torque feed-forward.")
     compensation: CompensationConfig = field_spec(doc="The step-length compensation's theta without a patient file.")
     patients_dir: str = field_spec(doc="Directory of the learned parameters per patient, <patients_dir>/<NAME>.json (relative: to the folder of the configuration file).")
 

@@ -132,7 +132,7 @@ class ModelConfig:
         shoulder_z = p.shoulder_height_fraction * p.height_m
         reach = (p.upper_arm.length_fraction + p.forearm.length_fraction) * p.height_m
         reach += p.hand.com_fraction * p.hand.length_fraction * p.height_m + self.sticks.length_m
-        if reach < shoulder_z + 0.05:
+        if reach < shoulder_z:  # even standing straight the straight arm puts the tip on the floor
             fail(
                 "sticks.length_m",
                 f"the sticks cannot reach the ground: arm plus stick reach {reach:.2f} m, shoulders at {shoulder_z:.2f} m",
@@ -175,7 +175,8 @@ class SensorsConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class IntentionConfig:
-    """Where the patient means to place the sticks, step by step (:mod:`sim.intention`)."""
+    """Where the patient means to place the sticks and how far it means to lean onto them, step by
+    step (:mod:`sim.intention`)."""
 
     regime: Literal["steady", "noisy", "drifting", "obstacle"] = field_spec(
         doc="steady: always ahead_m; noisy: Gaussian white noise (the paper's); drifting: a pace that wanders slowly; "
@@ -184,6 +185,9 @@ class IntentionConfig:
         doc="What the placement is ahead of: the CoM when the stick lifts, or the front foot's ankle (the stance foot of the next swing).")
     ahead_m: float = field_spec(doc="Mean intended stick placement ahead of the reference.", unit="m", min=0.1, max=0.8)
     spread_m: float = field_spec(doc="noisy and drifting: standard deviation of the intention about ahead_m.", unit="m", min=0.0, max=0.3)
+    lean_x: float = field_spec(
+        doc="Mean X_CoM/X_SP (stance heel 0 to stick tips 1) the patient leans to before a swing.", min=0.2, max=1.0)
+    lean_spread: float = field_spec(doc="noisy and drifting: standard deviation of the lean's X_CoM/X_SP about lean_x.", min=0.0, max=0.3)
     drift_steps: float = field_spec(doc="drifting: correlation length of the wander.", unit="steps", min=1.0, max=1000.0)
     obstacle_probability: float = field_spec(doc="obstacle: chance of a short or long placement at a step.", min=0.0, max=1.0)
     obstacle_offset_m: float = field_spec(doc="obstacle: that placement this much shorter or longer than ahead_m.", unit="m", min=0.0, max=0.4)
@@ -193,19 +197,20 @@ class IntentionConfig:
 class PatientControlConfig:
     """The patient's part of the walk: where the sticks go, and the arms' balance control."""
 
-    intention: IntentionConfig = field_spec(doc="Where the patient means to place the sticks, per step.")
+    intention: IntentionConfig = field_spec(doc="Where the patient means to place the sticks and how far it leans, per step.")
     stick_noise_m: float = field_spec(doc="Std of each stick's placement error about the intention.", unit="m", min=0.0, max=0.2)
-    stick_reach_margin_m: float = field_spec(
-        doc="A stick goal farther from the shoulder than the straight arm and stick less this is clamped (and counted).",
-        unit="m", min=0.0, max=0.5)
+    stick_reach_elbow_rad: float = field_spec(
+        doc="A stick goal farther from the shoulder than the arm reaches with the elbow this far bent is clamped (and counted).",
+        unit="rad", min=0.0, max=1.5)
     stick_min_advance_m: float = field_spec(
         doc="A moved stick lands at least this far ahead of where it stood (the gait moves the sticks forward).",
         unit="m", min=0.0, max=0.3)
     stick_half_width_m: float = field_spec(doc="Lateral distance of the stick tips from the midline.", unit="m", min=0.1, max=0.6)
-    control_hz: int = field_spec(doc="Rate of the patient's balance control.", unit="Hz", min=10, max=200)
     arm_stiffness_nm_rad: float = field_spec(doc="Arm joint stiffness of the patient's posture control.", unit="N.m/rad", min=0.0, max=5000.0)
     arm_damping_nms_rad: float = field_spec(doc="Arm joint damping of the patient's posture control.", unit="N.m.s/rad", min=0.0, max=100.0)
-    stick_mode: Literal["together", "alternating"] = field_spec(doc="Both sticks moved at once (paper) or one at a time.")
+    stick_mode: Literal["together", "alternating", "four_point"] = field_spec(
+        doc="Per double support: both sticks at once (the paper's words), both one at a time, or one, the stick on the "
+            "front foot's side (the four-point crutch gait; docs/SIM.md says which and why).")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -216,41 +221,50 @@ class GaitConfig:
     step_length_m: float = field_spec(doc="Step length of the scripted gait (a sweep overrides it).", unit="m", min=0.02, max=0.6)
     swing_time_s: float = field_spec(doc="Duration of the swing trajectory.", unit="s", min=0.3, max=5.0)
     swing_clearance_m: float = field_spec(doc="Peak lift of the swing ankle.", unit="m", min=0.01, max=0.3)
+    hip_advance_fraction: float = field_spec(
+        doc="The scripted stance leg carries the hip this share of the step length forward during a swing.", min=0.0, max=1.0)
     stick_move_time_s: float = field_spec(doc="Time the patient takes to move a stick.", unit="s", min=0.1, max=5.0)
     stick_lift_m: float = field_spec(doc="Peak lift of a moving stick tip.", unit="m", min=0.0, max=0.3)
     unload_time_s: float = field_spec(doc="Time the patient takes to unload a stick before lifting it.", unit="s", min=0.0, max=3.0)
-    lean_speed_m_s: float = field_spec(doc="Speed of the patient's lean toward the sticks.", unit="m/s", min=0.01, max=1.0)
-    lean_behind_sticks_m: float = field_spec(doc="The lean stops this far behind the stick tips.", unit="m", min=0.0, max=1.0)
-    lean_past_stance_m: float = field_spec(doc="The lean goes at least this far past the stance ankle before a swing ...", unit="m", min=0.0, max=0.3)
-    lean_most_past_stance_m: float = field_spec(doc="... and at most this far (the patient's comfort, however far the sticks stand).", unit="m", min=0.0, max=0.5)
-    lean_tolerance_m: float = field_spec(doc="A lean this close to its lead counts as reached.", unit="m", min=0.0, max=0.05)
-    stalled_lean_s: float = field_spec(doc="A lean still for this long ...", unit="s", min=0.1, max=1e9)
-    stalled_lean_lead_m: float = field_spec(doc="... with the CoM this far past the stance ankle starts the swing.", unit="m", min=0.0, max=0.3)
-    still_speed_m_s: float = field_spec(doc="A CoM slower than this counts as still (stalled lean).", unit="m/s", min=0.0, max=0.5)
-    press_stick_cost: float = field_spec(
-        doc="Under the controller, a lean at rest with a stick lighter than swing_trigger_stick_n for stalled_lean_s: "
-            "the patient presses on the sticks, their share of the load this much cheaper (1: as before).", min=1e-4, max=1.0)
+    lean_speed_m_s: float = field_spec(doc="Speed of the lean toward the sticks (the patient's, and the scripted gait's plan).",
+                                       unit="m/s", min=0.01, max=1.0)
+    lean_lead_m: float = field_spec(doc="A lean's CoM goal runs at most this far ahead of the CoM (the patient's and the scripted gait's).",
+                                    unit="m", min=0.0, max=0.3)
+    lean_stall_m: float = field_spec(doc="The scripted gait's lean is over when the CoM gets no farther by this ...", unit="m",
+                                     min=0.0005, max=0.1)
+    lean_stall_s: float = field_spec(doc="... in this time (once it has moved that far) ...", unit="s", min=0.05, max=5.0)
+    lean_start_s: float = field_spec(doc="... or in this time before it has.", unit="s", min=0.05, max=5.0)
+    lean_x_min: float = field_spec(doc="The patient leans at least to this X_CoM/X_SP, whatever its intention ...", min=0.0, max=1.0)
+    lean_x_max: float = field_spec(doc="... and at most to this one.", min=0.0, max=1.0)
     stick_force_comfort_n: float = field_spec(doc="The patient leans no further while a stick carries more.", unit="N", min=10.0, max=2000.0)
+    strut_spread: float = field_spec(
+        doc="A stick's force lies within this half-width (tangent) of the line from its tip to the shoulder: the arm pushes along itself.",
+        min=0.0, max=1.0)
     swing_trigger_stick_n: float = field_spec(doc="Both sticks above this load let the scripted gait swing.", unit="N", min=0.0, max=1000.0)
     stick_planted_n: float = field_spec(doc="A placed stick carrying this much is planted.", unit="N", min=1.0, max=500.0)
     foot_contact_n: float = field_spec(doc="A foot carrying more than this is on the floor.", unit="N", min=1.0, max=1000.0)
     foot_lift_s: float = field_spec(doc="Patient-only mode: a foot unloaded this long ...", unit="s", min=0.0, max=2.0)
     foot_raise_m: float = field_spec(doc="... and raised this far off the floor is swinging.", unit="m", min=0.0, max=0.2)
     shift_margin_m: float = field_spec(doc="Margin of the CoM in the support that remains before a stick lifts.", unit="m", min=0.0, max=0.2)
-    shift_speed_m_s: float = field_spec(doc="Speed of the patient's shift (and of easing the hip back in it).", unit="m/s", min=0.005, max=1.0)
+    balance_margin_m: float = field_spec(
+        doc="Before a stick lifts the CoM stays at least this far ahead of the ankles' midpoint, leaning on the other stick "
+            "(behind it the body rocks backward off its passive ankles, and sticks only push).", unit="m", min=0.0, max=0.2)
+    shift_speed_m_s: float = field_spec(doc="Speed of the patient's shift before a stick lifts.", unit="m/s", min=0.005, max=1.0)
     shift_min_s: float = field_spec(doc="Shortest shift before a stick lifts.", unit="s", min=0.0, max=5.0)
     shift_still_speed_m_s: float = field_spec(doc="The CoM must be slower than this before a stick lifts.", unit="m/s", min=0.0, max=1.0)
     trunk_pitch_rad: float = field_spec(doc="Trunk pitch the patient keeps.", unit="rad", min=-0.5, max=0.8)
     leg_reach_m: float = field_spec(doc="Hip-to-ankle distance the stance legs do not exceed.", unit="m", min=0.3, max=1.2)
     settle_s: float = field_spec(doc="Standing time before the first stick move.", unit="s", min=0.0, max=30.0)
     min_contact_n: float = field_spec(doc="Smallest normal force the balance distribution gives a loaded contact.", unit="N", min=0.0, max=200.0)
-    hip_speed_m_s: float = field_spec(doc="Fastest the stance legs carry the hip toward the patient's CoM goal.", unit="m/s", min=0.01, max=2.0)
-    hip_correction_m: float = field_spec(doc="Largest hip move the stance legs take in one tick.", unit="m", min=0.001, max=0.1)
-    leg_ff_gain: float = field_spec(doc="Share of the balance distribution's leg torques fed forward.", min=0.0, max=2.0)
+    hip_speed_m_s: float = field_spec(doc="Fastest the scripted stance legs carry the hip toward the patient's goal.", unit="m/s", min=0.01, max=2.0)
+    hip_lead_m: float = field_spec(
+        doc="The scripted stance legs command the hip at most this far from where it is (no wind-up when the body does not follow).",
+        unit="m", min=0.0, max=0.2)
+    target_step_rad: float = field_spec(doc="Largest change of a scripted stance leg's joint target per tick.", unit="rad", min=0.001, max=0.5)
 
     def validate(self) -> None:
-        if self.lean_most_past_stance_m < self.lean_past_stance_m:
-            fail("lean_most_past_stance_m", f"must not be below lean_past_stance_m {self.lean_past_stance_m}")
+        if self.lean_x_max < self.lean_x_min:
+            fail("lean_x_max", f"must not be below lean_x_min {self.lean_x_min}")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -272,8 +286,7 @@ class SagittalConfig:
 @dataclass(frozen=True, kw_only=True)
 class SimConfig:
     mode: Literal["full3d", "sagittal"] = field_spec(
-        doc="sagittal: the trunk held to the walking plane (the mode that walks); full3d: the 3-D model, which does not "
-            "walk yet (no frontal-plane leg joints: docs/SIM.md items 13 and 15)."
+        doc="full3d: the 3-D model (the paper's 18 DOF); sagittal: the same model with the trunk held to the walking plane."
     )
     physics: PhysicsConfig = field_spec(doc="Physics engine settings.")
     sagittal: SagittalConfig = field_spec(doc="Plane constraint of the sagittal mode.")

@@ -40,7 +40,7 @@ from config.controller_schema import ControllerConfig
 from controller.dmp import Dmp, DmpWeights
 from controller.envelope import Envelope, JointBounds, JointCommand
 from controller.estimator import Estimate, Measurements, StateEstimator
-from controller.factory import leg as make_leg, step_bounds
+from controller.factory import balance_gains, leg as make_leg, leg_loads, step_bounds
 from controller.fsm import SWINGS, FsmInputs, GaitFsm
 from controller.gait import GaitPlanner
 from controller.policy import StepPolicy, StepRecord
@@ -130,7 +130,8 @@ class ControllerCore:
             from controller.swing import load_swing
 
             swing_weights = load_swing(cfg)
-        self.gait = GaitPlanner(make_leg(cfg), Dmp(swing_weights), cfg.gait, dt_s=TICK_MS / 1000.0, substeps=cfg.swing.substeps)
+        self.gait = GaitPlanner(make_leg(cfg), Dmp(swing_weights), cfg.gait, leg_loads(cfg), balance_gains(cfg),
+                                ankle_height_m=cfg.legs.ankle_height_m, dt_s=TICK_MS / 1000.0, substeps=cfg.swing.substeps)
         self.policy = policy or StepPolicy(step_bounds(cfg), theta=(cfg.compensation.alpha, cfg.compensation.xhat_com))
         self.fall_tilt_rad = safety.fall_tilt_rad
         self._tilted_ticks = 0
@@ -386,7 +387,7 @@ class ControllerCore:
             return None, False
         sensors = [latest[n] for n in SENSOR_MESSAGES]  # (tick, values) in SENSOR_MESSAGES' order
         fresh = all(t == tick for t, _ in sensors) and all(s.status_tick == tick for s in nodes)
-        stick_l, stick_r, plantar_l, plantar_r, o, _ = (v for _, v in sensors)
+        stick_l, stick_r, plantar_l, plantar_r, o, rate = (v for _, v in sensors)
         q = np.array([s.status.position_rad for s in nodes])
         stick = [stick_l, stick_r]
         plantar = [plantar_l, plantar_r]
@@ -397,6 +398,7 @@ class ControllerCore:
             stick_force_n=np.array([s.force_N for s in stick]),
             heel_force_n=np.array([p.heel_force_N for p in plantar]),
             toe_force_n=np.array([p.toe_force_N for p in plantar]),
+            trunk_rate_rad_s=np.array([rate.rate_x_rad_s, rate.rate_y_rad_s, rate.rate_z_rad_s]),
         ), fresh
 
     def tick(self, tick: int) -> TickResult:
@@ -573,11 +575,13 @@ class ControllerCore:
             self._targets = None
         previous = (self._targets if self._targets is not None else (m.joint_position_rad if m is not None else np.zeros(4))).tolist()
         targets = self.gait.targets.tolist() if moving else None
+        limit = self.cfg.envelope.max_torque_nm
+        torques = np.clip(self.gait.torques, -limit, limit).tolist() if moving else None
         hold = JointCommand(JointMode.HOLD, torque_limit_nm=self.hold_torque_nm)
         sent = []
         for i, (name, joint) in enumerate(zip(self.node_names, self.joint_names)):
             if moving:
-                cmd = JointCommand(JointMode.TRACK, targets[i], torque_limit_nm=self.cfg.envelope.max_torque_nm)
+                cmd = JointCommand(JointMode.TRACK, targets[i], torque_nm=torques[i], torque_limit_nm=limit)
             else:
                 cmd = hold
             checked = self.envelope.check(joint, cmd, previous[i])

@@ -7,7 +7,8 @@ trunk's heading (its yaw removed), so the ratio needs no global position. Per ti
 
 * the trunk's roll and pitch from its IMU rotate the body model into the heading frame;
 * legs: hip and knee encoders give the ankle joints (the sagittal chain of the exoskeleton); a
-  loaded foot is flat on the floor, so the floor lies ``ankle height`` below its ankle;
+  foot with heel and toe loaded is flat on the floor, so the floor lies ``ankle height`` below
+  its ankle (with no flat foot, as on a risen heel, the floor stays where it was);
 * arms: the stick's IMU gives the forearm-and-stick orientation; the elbow's axis is the forearm's
   y axis, so the upper arm lies in the forearm's x-z plane at an unknown elbow angle ``e``; a
   loaded stick's tip touches the floor, which fixes ``e`` (``A cos e + B sin e = C``, the root
@@ -15,13 +16,13 @@ trunk's heading (its yaw removed), so the ratio needs no global position. Per ti
 * the support polygon is the pivot polygon of the loaded contacts (a passive ankle is a pin: its
   pivot, widened by half the sole across the heading, and the loaded tips), as the simulation's
   ground truth defines it; X_CoM/X_SP is the CoM's place between its rear and front extent;
-* at a swing's start (not every tick), :meth:`StateEstimator.planted_ratio`, the same between the
-  rear-most and front-most of both ankles and both tips whatever they carry (the loaded support
-  flips as a stick's load crosses its threshold, and with it the ratio, by up to 1), and
-  :meth:`StateEstimator.stance_ratio`, the step-length compensation's input:
-  the same over the support that carries the swing, the stance ankle and both tips (the swing foot
-  is about to leave the floor). The patient's lean follows where it placed the sticks, and this is
-  the ratio that sees it: over both feet the rear foot dilutes it (docs/SIM.md item 24).
+* at a swing's start (not every tick), :meth:`StateEstimator.stance_ratio`, the step-length
+  compensation's input, as SPEC defines it: the CoM's place along the walking direction in the
+  swing's support polygon (the stance sole, heel to toe, and both tips, whatever they carry: a
+  stick's load crosses its threshold as the swing starts), from its rear-most point (the heel) to
+  its front edge where the CoM's line crosses it (the tips' line): the share of the way from the
+  foot to the sticks, which the lever rule makes the sticks' share of the weight;
+  :meth:`StateEstimator.planted_ratio`, the same over both soles and both tips.
 """
 
 from __future__ import annotations
@@ -30,6 +31,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from controller.support import convex_hull, window_on_line
 
 SIDES = ("l", "r")
 Vec3 = tuple[float, float, float] | list[float]
@@ -65,6 +68,7 @@ class Measurements:
     stick_force_n: np.ndarray  # (2,)
     heel_force_n: np.ndarray  # (2,)
     toe_force_n: np.ndarray  # (2,)
+    trunk_rate_rad_s: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) body frame
 
 
 @dataclass
@@ -81,6 +85,7 @@ class Estimate:
     x_ratio: float  # X_CoM / X_SP over the loaded contacts (nan without a support extent)
     elbow_rad: tuple[float, float]
     tips_on_floor: tuple[bool, bool]  # whether the elbow angle could put the tip on the floor
+    stick_axes: np.ndarray = field(default_factory=lambda: np.array([[0.0, 0.0, -1.0]] * 2))  # (2, 3) unit, toward the tips
 
 
 @dataclass
@@ -127,7 +132,10 @@ class StateEstimator:
             ankle = _along(knee, legs.shank_m, shank)
             ankles.append(ankle)
             points += [_along(hip, b.thigh_com_m, thigh), _along(knee, b.shank_com_m, shank), (ankle[0] + fx, ankle[1] + 0.0, ankle[2] + fz)]
-        loaded_z = [ankles[i][2] - legs.ankle_height_m for i in range(2) if feet_loaded[i]]
+        # the floor from the feet that are flat (heel and toe loaded); with none (a heel risen in the
+        # swing, the foot on its toe, its ankle higher by the foot's tilt) the last tick's
+        loaded_z = [ankles[i][2] - legs.ankle_height_m for i in range(2)
+                    if feet_loaded[i] and heel[i] > b.foot_flat_n and toe[i] > b.foot_flat_n]
         if loaded_z:
             total = 0.0
             for z in loaded_z:  # summed in order, as numpy's mean of so few values
@@ -135,7 +143,7 @@ class StateEstimator:
             self._floor_z = total / len(loaded_z)
         floor_z = self._floor_z if self._floor_z is not None else min(ankles[0][2], ankles[1][2]) - legs.ankle_height_m
 
-        tips = []
+        tips, axes = [], []
         on_floor = [False, False]
         stick_rpy = m.stick_rpy_rad.tolist()
         for i in range(2):
@@ -143,6 +151,7 @@ class StateEstimator:
             s_roll, s_pitch, s_yaw = stick_rpy[i]
             forearm = rpy_rows(s_roll, s_pitch, s_yaw - yaw)  # relative to the trunk's heading
             u = (-forearm[0][2], -forearm[1][2], -forearm[2][2])  # stick axis (toward the tip)
+            axes.append(u)
             x_f = (forearm[0][0], forearm[1][0], forearm[2][0])  # forearm x
             # upper arm w = cos e u - sin e x_f; the tip at the floor: A cos e + B sin e = C
             a_, b_ = b.upper_arm_m * u[2], -b.upper_arm_m * x_f[2]
@@ -162,16 +171,26 @@ class StateEstimator:
         support = self._pivot_polygon(ankles, tips, feet_loaded, sticks_loaded)
         return Estimate(np.array(com), np.array(ankles), np.array(tips), feet_loaded, sticks_loaded, floor_z,
                         np.array(support).reshape(-1, 2), self.fore_aft_ratio(com[0], [p[0] for p in support]),
-                        (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]))
+                        (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]), np.array(axes))
 
     def stance_ratio(self, est: Estimate, stance: int) -> float:
-        """X_CoM/X_SP over the support of a swing of the other leg: between the rear-most and the
-        front-most of leg ``stance``'s ankle (0 left, 1 right) and both stick tips."""
-        return self.fore_aft_ratio(float(est.com[0]), [float(est.ankles[stance][0]), *est.tips[:, 0].tolist()])
+        """X_CoM/X_SP over the support of a swing of the other leg (SPEC): where the CoM lies along
+        the walking direction in the polygon of leg ``stance``'s sole (0 left, 1 right) and both
+        stick tips, from its rear-most point (the heel) to its front edge on the CoM's line (the
+        tips' line); nan for a span shorter than ``min_support_m``."""
+        return self._ratio_on_line(est.com, [est.ankles[stance]], est.tips)
 
     def planted_ratio(self, est: Estimate) -> float:
-        """X_CoM/X_SP between the rear-most and the front-most of both ankles and both stick tips."""
-        return self.fore_aft_ratio(float(est.com[0]), [*est.ankles[:, 0].tolist(), *est.tips[:, 0].tolist()])
+        """:meth:`stance_ratio` over both soles and both stick tips."""
+        return self._ratio_on_line(est.com, list(est.ankles), est.tips)
+
+    def _ratio_on_line(self, com, ankles, tips) -> float:
+        b = self.body
+        corners = [(float(a[0]) + dx, float(a[1]) + dy) for a in ankles
+                   for dx in (-b.foot_heel_m, b.foot_toe_m) for dy in (-b.foot_half_width_m, b.foot_half_width_m)]
+        points = corners + [(float(t[0]), float(t[1])) for t in tips]
+        rear, front = min(x for x, _ in points), window_on_line(convex_hull(points), float(com[1]), 0.0)[1]
+        return (float(com[0]) - rear) / (front - rear) if front - rear >= b.min_support_m else math.nan
 
     def fore_aft_ratio(self, com_x: float, xs: list[float]) -> float:
         """The CoM's place between the rear-most and the front-most of ``xs``; nan for a support

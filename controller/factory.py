@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from config.controller_schema import ControllerConfig
+from controller.balance import BalanceGains, LegLoads
 from controller.compensation import StepBounds
 from controller.kinematics import Leg
 from controller.pi2 import Pi2Learner, Pi2Params
@@ -21,6 +22,18 @@ if TYPE_CHECKING:
 def leg(cfg: ControllerConfig) -> Leg:
     g = cfg.legs
     return Leg(g.thigh_m, g.shank_m, g.hip_min_rad, g.hip_max_rad, g.knee_min_rad, g.knee_max_rad)
+
+
+def leg_loads(cfg: ControllerConfig) -> LegLoads:
+    return LegLoads(cfg.body, cfg.legs)
+
+
+def balance_gains(cfg: ControllerConfig) -> BalanceGains:
+    b = cfg.balance
+    return BalanceGains(com_n_m=b.com_stiffness_n_m, com_ns_m=b.com_damping_ns_m, height_n_m=b.height_stiffness_n_m,
+                        height_ns_m=b.height_damping_ns_m, tilt_nm_rad=b.tilt_stiffness_nm_rad, tilt_nms_rad=b.tilt_damping_nms_rad,
+                        friction=b.friction, min_foot_n=b.min_foot_n, ankle_stiffness_nm_rad=cfg.body.ankle_stiffness_nm_rad,
+                        ankle_rest_rad=cfg.body.ankle_rest_rad)
 
 
 def step_bounds(cfg: ControllerConfig) -> StepBounds:

@@ -26,9 +26,11 @@ from config.loader import AiderError
 from controller.pi2 import LearnerError, Pi2Learner
 
 FORMAT = "aider-exo patient"
-VERSION = 2
+VERSION = 3
 #: the X_CoM/X_SP that theta maps to a step length (controller.estimator.StateEstimator.stance_ratio)
-X_RATIO = "stance ankle and stick tips"
+X_RATIO = "stance sole and stick tips"
+#: what the theta of an older version's file was learned on
+_OLD_RATIOS = {1: "both feet", 2: "the stance ankle and the stick tips"}
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
 
 
@@ -64,9 +66,10 @@ def load_patient(
         raise PatientError(f"{path}: cannot read the patient file ({exc})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise PatientError(f"{path}: not an {FORMAT!r} file")
-    if data.get("version") == 1:
-        raise PatientError(f"{path}: theta learned on X_CoM/X_SP over both feet (version 1); this controller's is over the "
-                           f"{X_RATIO}: relearn the patient")
+    old = data.get("version")
+    if isinstance(old, int) and old in _OLD_RATIOS:
+        raise PatientError(f"{path}: theta learned on X_CoM/X_SP over {_OLD_RATIOS[old]} (version {old}); this controller's "
+                           f"is over the {X_RATIO}: relearn the patient")
     if data.get("version") != VERSION or data.get("x_ratio") != X_RATIO:
         raise PatientError(f"{path}: not an {FORMAT!r} file of version {VERSION} with x_ratio {X_RATIO!r}")
     theta = data.get("theta")

@@ -1,11 +1,14 @@
 """Quasi-static whole-body balance by contact-force distribution (pure numpy).
 
 A desired wrench at the centre of mass is distributed over the loaded contacts: feet act at their
-ankle pins (a passive pitch ankle transmits force but no moment), stick tips at the tip. Each
-contact force lies in a linearised friction cone (non-negative combinations of four pyramid
-edges) above a minimum normal load, so a contact can push but never pull. The distribution is a
-non-negative least-squares fit; when the CoM lies outside the support polygon no admissible
-distribution produces the wrench and the residual says so: that is how the HHEA falls.
+ankle pins (a passive pitch ankle transmits force but no moment about its axis; the caller gives
+each foot two contacts across the sole, so the sole carries a roll moment), stick tips at the
+tip. Each contact force lies in a linearised friction cone (non-negative combinations of four
+pyramid edges) above a minimum normal load, so a contact can push but never pull. A stick is a
+strut: its force lies in a narrow pyramid about the line from its tip to the shoulder, so the
+arm carries it along its length. The distribution is a non-negative least-squares fit; when the
+CoM lies outside the support polygon no admissible distribution produces the wrench and the
+residual says so: that is how the HHEA falls.
 """
 
 from __future__ import annotations
@@ -27,13 +30,20 @@ def nnls(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Contact:
-    """A support point: ``link`` is the joint index of its link, ``point`` its world position."""
+    """A support point: ``link`` is the joint index of its link, ``point`` its world position.
+
+    ``axis`` (a unit vector, the direction the contact pushes the body along) makes it a strut:
+    its force lies in a pyramid of half-width ``spread`` about the axis instead of the friction
+    pyramid about the vertical."""
 
     name: str
     link: int
     point: np.ndarray
     cost: float  # relative effort of loading it (arms cost more than legs)
     lateral: bool = True  # False: no force across the walking direction (a leg without frontal-plane joints)
+    axis: np.ndarray | None = None
+    spread: float = 0.0
+    min_n: float | None = None  # its own minimum normal load (default: the distribution's)
 
 
 @functools.lru_cache(maxsize=16)
@@ -45,6 +55,23 @@ def pyramid_edges(mu: float, lateral: bool = True) -> np.ndarray:
     edges = np.array([[mu, 0, 1], [-mu, 0, 1], [0, mu_y, 1], [0, -mu_y, 1]], dtype=float)
     edges.flags.writeable = False
     return edges
+
+
+_UP = np.array([0.0, 0.0, 1.0])
+_UP.flags.writeable = False
+
+
+def strut_edges(axis: np.ndarray, spread: float) -> np.ndarray:
+    """(4, 3) edges of a pyramid of half-width ``spread`` about ``axis`` (pointing up), each scaled
+    to a unit vertical component like :func:`pyramid_edges`, so an edge's amount is its load."""
+    a = np.asarray(axis, dtype=float)
+    a = a / np.linalg.norm(a)
+    across = cross(a, _UP)
+    norm = np.linalg.norm(across)
+    across = across / norm if norm > 1e-9 else np.array([1.0, 0.0, 0.0])
+    up = cross(across, a)
+    edges = np.array([a + spread * across, a - spread * across, a + spread * up, a - spread * up])
+    return edges / edges[:, 2:3]
 
 
 @functools.lru_cache(maxsize=64)
@@ -81,6 +108,11 @@ def distribute(
     if k == 0:
         return np.zeros((0, 3)), float(np.linalg.norm(weights * wrench))
     edges = _stacked_edges(mu, tuple(c.lateral for c in contacts))  # (k, 4, 3)
+    struts = [i for i, c in enumerate(contacts) if c.axis is not None]
+    if struts:
+        edges = edges.copy()
+        for i in struts:
+            edges[i] = strut_edges(contacts[i].axis, contacts[i].spread)
     flat = edges.reshape(-1, 3)
     r = np.array([c.point for c in contacts]) - com  # (k, 3)
     n = 4 * k
@@ -89,14 +121,18 @@ def distribute(
     lhs[3:6] = cross(r.repeat(4, axis=0), flat).T
     lhs[:6] *= weights[:, None]
     lhs[_diagonal(n)] = np.repeat([math.sqrt(c.cost) for c in contacts], 4)
-    # what the minimum normal loads f0 = (0, 0, min_normal_n) give: force k f0, moment sum r x f0
-    sum_x, sum_y = r[:, 0].sum(), r[:, 1].sum()
-    base = np.array([0.0, 0.0, k * min_normal_n, min_normal_n * sum_y, -min_normal_n * sum_x, 0.0])
+    # the minimum loads: min_normal_n along each contact's base direction (vertical, or its strut's
+    # axis scaled to a unit vertical component); what they give: force sum f0, moment sum r x f0
+    base_dir = np.zeros((k, 3))
+    base_dir[:, 2] = 1.0
+    for i in struts:
+        base_dir[i] = contacts[i].axis / contacts[i].axis[2]
+    f0 = np.array([min_normal_n if c.min_n is None else c.min_n for c in contacts])[:, None] * base_dir
+    base = np.concatenate([f0.sum(axis=0), cross(r, f0).sum(axis=0)])
     rhs = np.zeros(6 + n)
     rhs[:6] = weights * (wrench - base)
     lam = nnls(lhs, rhs)
-    forces = (lam.reshape(k, 4, 1) * edges).sum(axis=1)
-    forces[:, 2] += min_normal_n
+    forces = (lam.reshape(k, 4, 1) * edges).sum(axis=1) + f0
     residual = float(np.linalg.norm(lhs[:6] @ lam - rhs[:6]))
     return forces, residual
 

@@ -31,3 +31,9 @@ def cross_z(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def clamp(x: float, lo: float, hi: float) -> float:
     """``float(np.clip(x, lo, hi))`` for a scalar: ``min(max(x, lo), hi)`` (nan stays nan)."""
     return float(min(max(x, lo), hi))
+
+
+def minimum_jerk(a: float) -> float:
+    """Minimum-jerk blend ``10 a^3 - 15 a^4 + 6 a^5`` from 0 to 1, clamped outside [0, 1]."""
+    a = min(max(a, 0.0), 1.0)
+    return a * a * a * (10 - 15 * a + 6 * a * a)

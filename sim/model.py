@@ -74,6 +74,11 @@ class Body:
         """(upper arm, elbow to stick tip) lengths of the 2-link arm."""
         return self.upper_arm_m, self.forearm_m + self.grip_m + self.stick_m
 
+    def arm_span_m(self, elbow_rad: float) -> float:
+        """Shoulder to stick tip with the elbow ``elbow_rad`` bent (the 2-link arm's reach)."""
+        upper, lower = self.arm_reach_m
+        return math.sqrt(upper**2 + lower**2 + 2 * upper * lower * math.cos(elbow_rad))
+
     def link(self, name: str) -> Link:
         return next(link for link in self.links if link.name == name)
 

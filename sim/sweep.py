@@ -13,6 +13,7 @@ from typing import Any, Callable
 import numpy as np
 
 from config.sim_schema import SimConfig
+from sim.pace import default_max_time_s
 from sim.walk import WalkResult, gait_settings, walk
 
 
@@ -36,7 +37,8 @@ def episode_summary(r: WalkResult) -> dict[str, Any]:
 
 def _episode(args: tuple[SimConfig, float, int, int]) -> dict[str, Any]:
     cfg, length, seed, steps = args
-    return episode_summary(walk(cfg, gait_settings(cfg, step_length_m=length), seed=seed, max_steps=steps))
+    return episode_summary(walk(cfg, gait_settings(cfg, step_length_m=length), seed=seed, max_steps=steps,
+                                max_time_s=default_max_time_s(steps // 2)))
 
 
 def run_sweep(

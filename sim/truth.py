@@ -26,8 +26,10 @@ __all__ = [
     "polygon_area",
     "polygon_centroid",
     "stability_margin",
+    "pivot_margin",
     "fore_aft_ratio",
     "fore_aft_ratio_at_lateral",
+    "extent_on_line",
     "radial_ratio",
     "com_of_links",
     "FallCriteria",
@@ -91,10 +93,15 @@ def convex_hull_2d(points) -> np.ndarray:
         what exists: ``m = 0`` (no points), ``m = 1`` (all points equal) or ``m = 2`` (all
         points collinear: the two end points). Such polygons have zero area.
     """
-    # Sorted unique points as plain tuples: for the handful of contacts this is the fast path.
-    pts = sorted(set(map(tuple, _points(points, "points").tolist())))  # by x, then y
+    return np.array(_hull(map(tuple, _points(points, "points").tolist())), dtype=float).reshape(-1, 2)
+
+
+def _hull(points) -> list[tuple[float, float]]:
+    """:func:`convex_hull_2d` of plain (x, y) tuples, as tuples: for the handful of contacts of a
+    tick plain floats are the fast path."""
+    pts = sorted(set(points))  # by x, then y
     if len(pts) <= 2:
-        return np.array(pts, dtype=float).reshape(-1, 2)
+        return pts
 
     def chain(seq: list[tuple[float, float]]) -> list[tuple[float, float]]:
         out: list[tuple[float, float]] = []
@@ -105,7 +112,7 @@ def convex_hull_2d(points) -> np.ndarray:
         return out
 
     lower, upper = chain(pts), chain(pts[::-1])
-    return np.array(lower[:-1] + upper[:-1], dtype=float)
+    return lower[:-1] + upper[:-1]
 
 
 def support_polygon(contact_points_xy) -> np.ndarray:
@@ -156,18 +163,28 @@ def pivot_polygon(ankle_xy, tip_xy, ankle_halfwidth: float = 0.0) -> np.ndarray:
 
 def polygon_area(polygon) -> float:
     """Area of the convex hull of ``polygon`` (shape (m, 2)); 0 for m < 3. Always >= 0."""
-    hull = convex_hull_2d(polygon)
+    return _hull_area(convex_hull_2d(polygon))
+
+
+def _next(a: np.ndarray) -> np.ndarray:
+    """Each vertex's successor around the polygon (``np.roll(a, -1, axis=0)``, without its
+    argument handling)."""
+    return np.concatenate((a[1:], a[:1]))
+
+
+def _hull_area(hull: np.ndarray) -> float:
+    """Shoelace area of a counter-clockwise hull (:func:`convex_hull_2d`'s output)."""
     if len(hull) < 3:
         return 0.0
     x, y = (hull - hull[0]).T
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+    return 0.5 * float(np.dot(x, _next(y)) - np.dot(_next(x), y))
 
 
 def _is_degenerate(hull: np.ndarray) -> bool:
     if len(hull) < 3:
         return True
     span = float(np.ptp(hull, axis=0).max())
-    return polygon_area(hull) <= _REL_EPS * span * span
+    return _hull_area(hull) <= _REL_EPS * span * span
 
 
 def polygon_centroid(polygon) -> np.ndarray:
@@ -182,19 +199,9 @@ def polygon_centroid(polygon) -> np.ndarray:
     if _is_degenerate(hull):
         raise ValueError("the centroid of a polygon with zero area is undefined")
     rel = hull - hull[0]  # relative coordinates keep the shoelace sums well conditioned
-    nxt = np.roll(rel, -1, axis=0)
+    nxt = _next(rel)
     w = rel[:, 0] * nxt[:, 1] - nxt[:, 0] * rel[:, 1]
     return hull[0] + ((rel + nxt) * w[:, None]).sum(axis=0) / (3.0 * w.sum())
-
-
-def _boundary_distance(hull: np.ndarray, p: np.ndarray) -> float:
-    """Euclidean distance from p to the closed polyline through the hull vertices."""
-    a = hull
-    ab = np.roll(hull, -1, axis=0) - a
-    len2 = (ab * ab).sum(axis=1)
-    t = np.divide(((p - a) * ab).sum(axis=1), len2, out=np.zeros_like(len2), where=len2 > 0.0)
-    nearest = a + np.clip(t, 0.0, 1.0)[:, None] * ab
-    return float(np.hypot(*(nearest - p).T).min())
 
 
 def stability_margin(polygon, point) -> float:
@@ -218,12 +225,38 @@ def stability_margin(polygon, point) -> float:
     hull, p = convex_hull_2d(polygon), _vec(point, 2, "point")
     if len(hull) == 0:
         return -math.inf
-    distance = _boundary_distance(hull, p)
-    if _is_degenerate(hull):
-        return -distance
-    nxt = np.roll(hull, -1, axis=0)
-    turns = (nxt[:, 0] - hull[:, 0]) * (p[1] - hull[:, 1]) - (nxt[:, 1] - hull[:, 1]) * (p[0] - hull[:, 0])
-    return distance if (turns >= 0.0).all() else -distance
+    return _margin(hull.tolist(), float(p[0]), float(p[1]), _is_degenerate(hull))
+
+
+def pivot_margin(ankles_xy: list[tuple[float, float]], tips_xy: list[tuple[float, float]], ankle_halfwidth: float,
+                 point: tuple[float, float]) -> float:
+    """:func:`stability_margin` of ``point`` in :func:`pivot_polygon` ``(ankles_xy, tips_xy,
+    ankle_halfwidth)``, all plain floats: the per-tick ground truth (a handful of vertices, where
+    numpy's per-call cost dominates)."""
+    verts = _hull([(x, y + s * ankle_halfwidth) for x, y in ankles_xy for s in (-1.0, 1.0)] + list(tips_xy))
+    if not verts:
+        return -math.inf
+    degenerate = len(verts) < 3
+    if not degenerate:
+        xs, ys = [v[0] for v in verts], [v[1] for v in verts]
+        span = max(max(xs) - min(xs), max(ys) - min(ys))
+        x0, y0 = verts[0]
+        area = 0.5 * sum((ax - x0) * (by - y0) - (bx - x0) * (ay - y0) for (ax, ay), (bx, by) in zip(verts, verts[1:] + verts[:1]))
+        degenerate = area <= _REL_EPS * span * span
+    return _margin(verts, float(point[0]), float(point[1]), degenerate)
+
+
+def _margin(verts: list, px: float, py: float, degenerate: bool) -> float:
+    """The signed distance of (px, py) to the closed polyline ``verts`` (a counter-clockwise hull):
+    positive inside, never positive for a ``degenerate`` hull."""
+    distance, inside = math.inf, True
+    for (ax, ay), (bx, by) in zip(verts, verts[1:] + verts[:1]):
+        ex, ey = bx - ax, by - ay
+        len2 = ex * ex + ey * ey
+        t = min(max(((px - ax) * ex + (py - ay) * ey) / len2, 0.0), 1.0) if len2 > 0.0 else 0.0
+        distance = min(distance, math.hypot(ax + t * ex - px, ay + t * ey - py))
+        inside = inside and ex * (py - ay) - ey * (px - ax) >= 0.0
+    return -distance if degenerate or not inside else distance
 
 
 def fore_aft_ratio(polygon, point, heading=(1.0, 0.0)) -> float:
@@ -281,21 +314,28 @@ def fore_aft_ratio_at_lateral(polygon, point, heading=(1.0, 0.0)) -> float:
         0 at the rear crossing, 1 at the front crossing, < 0 or > 1 outside. ``nan`` when
         the line misses the polygon or only touches it in one point.
     """
+    p, h = _vec(point, 2, "point"), _unit(heading)
+    rear, front = extent_on_line(polygon, p, h)
+    if not front - rear > _REL_EPS * max(1.0, abs(rear), abs(front)):
+        return math.nan
+    return (float(p @ h) - rear) / (front - rear)
+
+
+def extent_on_line(polygon, point, heading=(1.0, 0.0)) -> tuple[float, float]:
+    """(rear, front): where the line through ``point`` along ``heading`` enters and leaves the
+    convex hull of ``polygon``, as positions along the heading; (nan, nan) where it misses it."""
     hull, p, h = convex_hull_2d(polygon), _vec(point, 2, "point"), _unit(heading)
     if len(hull) == 0:
-        return math.nan
+        return math.nan, math.nan
     lateral = np.array([-h[1], h[0]])
     d = (hull - p) @ lateral  # signed lateral offset of each vertex from the line
     s = hull @ h  # position of each vertex along the heading
-    d2, s2 = np.roll(d, -1), np.roll(s, -1)
+    d2, s2 = _next(d), _next(s)
     crossing = np.sign(d) * np.sign(d2) < 0.0  # signs, not d * d2: that product underflows for tiny offsets
     hits = np.concatenate([s[d == 0.0], (s + d / np.where(crossing, d - d2, 1.0) * (s2 - s))[crossing]])
     if len(hits) == 0:
-        return math.nan
-    rear, front = float(hits.min()), float(hits.max())
-    if front - rear <= _REL_EPS * max(1.0, abs(rear), abs(front)):
-        return math.nan
-    return (float(p @ h) - rear) / (front - rear)
+        return math.nan, math.nan
+    return float(hits.min()), float(hits.max())
 
 
 def radial_ratio(polygon, point) -> float:
@@ -323,7 +363,7 @@ def radial_ratio(polygon, point) -> float:
     if r == 0.0:
         return 0.0
     u = (c - g) / r
-    edges = np.roll(hull, -1, axis=0) - hull
+    edges = _next(hull) - hull
     normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1)  # outward for a CCW polygon
     along = normals @ u
     slack = -((g - hull) * normals).sum(axis=1)  # > 0: g is strictly inside
@@ -420,11 +460,21 @@ class FallCriteria:
         return None
 
     @staticmethod
-    def direction(trunk_roll_rad: float, trunk_pitch_rad: float, upright_pitch_rad: float = 0.0) -> str:
-        """Which way a fall goes, from the trunk's attitude when it is detected: ``"lateral"``
-        when the roll is the larger deviation from upright (or not finite), else ``"forward"``
-        (pitched nose-down past its upright lean) or ``"backward"``."""
+    def direction(trunk_roll_rad: float, trunk_pitch_rad: float, upright_pitch_rad: float = 0.0,
+                  com_velocity_xy: tuple[float, float] | None = None, tilted_rad: float = 0.15) -> str:
+        """Which way a fall goes: ``"lateral"``, ``"forward"`` or ``"backward"``. From the trunk's
+        attitude when it is tilted (roll or pitch at least ``tilted_rad`` from upright, or not
+        finite): lateral when the roll is the larger deviation, else forward (pitched nose-down
+        past its upright lean) or backward. A trunk still upright (a body that sinks, as on legs
+        that fold) falls the way its CoM moves, ``com_velocity_xy`` in the trunk's heading frame
+        (x forward, y left), when it is given."""
         pitch = trunk_pitch_rad - upright_pitch_rad
+        tilted = not (max(abs(trunk_roll_rad), abs(pitch)) < tilted_rad)  # also true for nan
+        if not tilted and com_velocity_xy is not None:
+            vx, vy = com_velocity_xy
+            if abs(vy) > abs(vx):
+                return "lateral"
+            return "forward" if vx > 0 else "backward"
         if not abs(trunk_roll_rad) < abs(pitch):  # also true for nan
             return "lateral"
         return "forward" if pitch > 0 else "backward"

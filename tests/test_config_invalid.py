@@ -179,8 +179,8 @@ BAD: list[Bad] = [
         "controller.learning.alpha_min", "must be below alpha_max"),
     Bad("minmax-sim-joint", "min-above-max", _text(_HIP_JOINT, "hip:              {lower_rad: 2.50, upper_rad: 2.00, torque_limit_nm: 100.0,"),
         "sim.model.joints.hip.lower_rad", "2.5 must be below upper_rad 2.0"),
-    Bad("minmax-patient-lean", "min-above-max", _set("sim.gait.lean_most_past_stance_m", 0.01),
-        "sim.gait.lean_most_past_stance_m", "must not be below lean_past_stance_m 0.03"),
+    Bad("minmax-patient-lean", "min-above-max", _set("sim.gait.lean_x_max", 0.3),
+        "sim.gait.lean_x_max", "must not be below lean_x_min 0.35"),
     # --- beyond the hard bounds of the hardware / of the safety case ------------------------
     Bad("bound-command-watchdog-6", "beyond-bound", _text(_CTT, "  command_timeout_ticks: 6"),
         "nodes.command_timeout_ticks", "6 is above the maximum 5"),

@@ -206,6 +206,17 @@ def test_comparison_checks_follow_the_done_when_rules():
     c = comparison_checks(all_fall, 10)
     assert c["non_falling_fixed"] == [] and c["adaptive_force_below_every_non_falling_fixed"]
     assert not comparison_checks(gaits(55.0, 7), 10)["longest_fixed_falls_within_6_cycles"]
+    # the longest length falls within 6 cycles in half of its walks or more (2 of 3 here, not 1 of 3)
+    assert comparison_checks(gaits(55.0, 2, long_falls=2), 10)["longest_fixed_falls_within_6_cycles"]
+    assert not comparison_checks(gaits(55.0, 2, long_falls=1), 10)["longest_fixed_falls_within_6_cycles"]
+    # both sticks together: twice the per-stick mean, checked against the paper's 250-500 N
+    c = comparison_checks(gaits(150.0, 2), 10)
+    assert c["adaptive_both_sticks_n"] == 300.0 and c["adaptive_both_sticks_in_paper_range"]
+    assert not comparison_checks(gaits(55.0, 2), 10)["adaptive_both_sticks_in_paper_range"]  # 110 N
+    # the force falls with the length: 0.10 m at 64 N, 0.20 m at 50 N is 22 % less; 61 N at 0.20 m is not 10 %
+    assert c["shortest_fixed"] == "0.10" and c["fixed_force_fall"] == round(1 - 50 / 64, 4) and c["fixed_force_falls_with_length"]
+    flat = gaits(55.0, 2)[:-1] + [GaitStats("0.20", None, 0.20, [_walk(s, 2, 61.0, True) for s in range(3)])]
+    assert not comparison_checks(flat, 10)["fixed_force_falls_with_length"]
     # a cheaper fixed length that falls in 0 of 3 walks (below 30 %) is one the adaptive gait should beat
     assert not comparison_checks(gaits(55.0, 2, long_falls=0), 10)["every_cheaper_fixed_falls"]
     assert comparison_checks(gaits(55.0, 2, long_falls=1), 10)["every_cheaper_fixed_falls"]  # 1 of 3: 33 %
@@ -218,7 +229,9 @@ def test_comparison_checks_how_far_x_com_spreads_over_every_compared_swing():
     wide = comparison_checks([GaitStats("adaptive", (-0.5, 0.5), None, [_walk(0, 10, 55.0, False, x)]),
                               GaitStats("0.10", None, 0.10, [_walk(0, 10, 60.0, False, x)])], 10)
     assert wide["x_ratio"]["swings"] == 82 and wide["x_ratio"]["range_p10_p90"] == pytest.approx(0.32)
-    assert wide["x_ratio_spreads"]
+    assert wide["x_ratio_spreads"] and not wide["x_ratio_median_in_paper_range"]  # median 0.25
+    paper = comparison_checks([GaitStats("adaptive", (-0.5, 0.5), None, [_walk(0, 10, 55.0, False, tuple(v + 0.5 for v in x))])], 10)
+    assert paper["x_ratio"]["p50"] == pytest.approx(0.75) and paper["x_ratio_median_in_paper_range"]
 
 
 def test_compare_walks_every_gait_on_the_same_seeds():

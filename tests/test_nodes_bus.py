@@ -622,17 +622,20 @@ def test_the_status_says_where_the_patient_is_in_its_gait(ctl):
     for _ in range(10):
         ctl.sync()
     standing = ctl.host.status()["patient"]
-    assert standing["phase"] == "settle" and "shift_margin_m" not in standing
+    assert standing["phase"] == "settle" and "lift_window_m" not in standing
     ctl.gait_state = GaitState.DOUBLE_SUPPORT
     walker, shifting = ctl.host.patient, []
     for _ in range(60):
         ctl.sync()
-        shifting.append((ctl.host.status()["patient"], round(walker._shift_margin(), 4)))
-    shifting = [(p, margin) for p, margin in shifting if p["phase"] == "shift"]
+        patient = walker.patient
+        window = [round(v, 4) for v in patient.lift_window(patient._lifting())] if patient.phase.value == "shift" else None
+        shifting.append((ctl.host.status()["patient"], window))
+    shifting = [(p, window) for p, window in shifting if p["phase"] == "shift"]
     assert shifting, "the patient never began its weight shift"
-    assert sorted(shifting[0][0]["sticks_to_move"]) == ["l", "r"]
+    # the four-point gait: the front foot's stick (both for the two-stick patterns)
+    assert len(shifting[0][0]["sticks_to_move"]) == (1 if walker.patient.p.stick_mode == "four_point" else 2)
     assert [p["phase_s"] for p, _ in shifting] == sorted(p["phase_s"] for p, _ in shifting)
-    assert all(p["shift_margin_m"] == margin for p, margin in shifting)
+    assert all(p["lift_window_m"] == window for p, window in shifting)
 
 
 def test_a_fall_is_reported_with_the_sync_tick_and_time_it_happened(ctl):

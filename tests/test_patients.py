@@ -146,12 +146,13 @@ def test_a_bad_patient_file_is_a_one_line_error_naming_it(tmp_path, kind):
     assert_one_line_naming(info.value, path)
 
 
-def test_a_version_1_file_learned_on_the_other_ratio_is_refused_to_be_relearned(tmp_path):
-    # version 1 files hold a theta of X_CoM/X_SP over both feet: on this controller's ratio (over the
-    # stance ankle and the tips, about half as large) it would ask for other steps entirely
+@pytest.mark.parametrize("version", [1, 2])
+def test_a_file_learned_on_an_older_ratio_is_refused_to_be_relearned(tmp_path, version):
+    # version 1 files hold a theta of X_CoM/X_SP over both feet, version 2 over the stance ankle and
+    # the tips: on this controller's ratio (from the stance heel) it would ask for other steps entirely
     path = tmp_path / "p.json"
-    path.write_text(json.dumps({k: v for k, v in valid_file(version=1).items() if k != "x_ratio"}))
-    with pytest.raises(PatientError, match="version 1.*relearn") as info:
+    path.write_text(json.dumps({k: v for k, v in valid_file(version=version).items() if k != "x_ratio"}))
+    with pytest.raises(PatientError, match=f"version {version}.*relearn") as info:
         load_patient(tmp_path, "p")
     assert_one_line_naming(info.value, path)
 

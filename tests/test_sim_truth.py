@@ -16,6 +16,7 @@ from sim.truth import (
     detect_fall,
     fore_aft_ratio,
     fore_aft_ratio_at_lateral,
+    pivot_margin,
     pivot_polygon,
     polygon_area,
     polygon_centroid,
@@ -307,6 +308,19 @@ def test_fall_direction_is_the_larger_deviation_from_upright(roll, pitch, uprigh
     assert FallCriteria.direction(roll, pitch, upright) == direction
 
 
+@pytest.mark.parametrize(
+    ("roll", "pitch", "velocity", "direction"),
+    [
+        (0.02, 0.11, (0.6, 0.05), "forward"),  # upright, sinking while the CoM runs forward
+        (0.02, 0.09, (-0.3, 0.1), "backward"),
+        (-0.05, 0.10, (0.1, -0.4), "lateral"),
+        (0.6, 0.1, (0.8, 0.0), "lateral"),  # tilted: the attitude decides, not the CoM's motion
+    ],
+)
+def test_an_upright_trunk_falls_the_way_its_com_moves(roll, pitch, velocity, direction):
+    assert FallCriteria.direction(roll, pitch, 0.1, velocity) == direction
+
+
 def test_fall_criteria_validation():
     with pytest.raises(ValueError, match="base_height_m"):
         CRITERIA.check([], 0.0, 0.0)
@@ -388,3 +402,14 @@ def test_agrees_with_pybullet_conventions():
         q = p.getQuaternionFromEuler(rpy.tolist())
         assert quat_to_rpy(q) == pytest.approx(p.getEulerFromQuaternion(q), abs=1e-9)
         assert rpy_to_matrix(rpy).ravel() == pytest.approx(p.getMatrixFromQuaternion(q), abs=1e-9)
+
+
+def test_the_pivot_margin_of_plain_floats_is_the_stability_margin_of_the_pivot_polygon():
+    """The per-tick ground truth (:func:`pivot_margin`) is the margin of :func:`pivot_polygon`."""
+    rng = np.random.default_rng(4)
+    for _ in range(300):
+        ankles = [tuple(rng.uniform(-0.3, 0.3, 2)) for _ in range(rng.integers(0, 3))]
+        tips = [tuple(rng.uniform(-0.6, 0.6, 2)) for _ in range(rng.integers(0, 3))]
+        point = tuple(rng.uniform(-0.5, 0.5, 2))
+        want = stability_margin(pivot_polygon(np.array(ankles).reshape(-1, 2), np.array(tips).reshape(-1, 2), ankle_halfwidth=0.045), point)
+        assert pivot_margin(ankles, tips, 0.045, point) == pytest.approx(want, abs=1e-12)

@@ -39,17 +39,17 @@ class Walked(NamedTuple):
 
 @pytest.fixture(scope="module")
 def walked():
-    """The frames of a one-cycle lock-step walk as a listener on its bus saw them, and the
+    """The frames of a two-cycle lock-step walk (over 10 s) as a listener on its bus saw them, and the
     controller's own estimate of every tick."""
     channel = "view-walk"
     estimates: dict[int, np.ndarray] = {}
     with virtual_bus(channel) as listener:
-        outcome = walk(CFG, cycles=1, seed=0, channel=channel, compare_ratio=False,
+        outcome = walk(CFG, cycles=2, seed=0, channel=channel, compare_ratio=False,
                        on_tick=lambda r, core, host: estimates.__setitem__(r.tick, None if r.estimate is None else r.estimate.com))
         frames = []
         while (msg := listener.recv(0)) is not None:
             frames.append(Frame.from_message(msg))
-    assert outcome.cycles_completed == 1 and not outcome.fell
+    assert outcome.cycles_completed == 2 and not outcome.fell
     return Walked(frames, estimates, outcome.steps)
 
 
@@ -86,7 +86,7 @@ def test_the_model_follows_the_gait_counts_steps_and_keeps_the_health_of_every_n
         if not states or states[-1] != model.gait_state:
             states.append(model.gait_state)
     assert {"DOUBLE_SUPPORT", "SWING_LEFT", "SWING_RIGHT"} <= set(states)
-    assert model.steps == 2 and model.landings >= 1
+    assert model.steps == len(walked.steps) == 4 and model.landings >= 1  # two cycles
     placed = [s["length_m"] for s in model.landed]
     assert placed and all(0.05 < x < 0.3 for x in placed)  # feet apart at landing, from the estimator's ankles
     snap = model.snapshot()
@@ -103,7 +103,7 @@ def test_the_controllers_telemetry_frames_give_its_steps_and_theta(walked):
     model = _fed(frames).model
     step, learning = model.snapshot()["gait"]["controller_step"], model.snapshot()["learning"]
     steps = walked.steps
-    assert step["index"] == len(steps) == 2 and step["policy"] == "COMPENSATED"
+    assert step["index"] == len(steps) == 4 and step["policy"] == "COMPENSATED"
     assert step["commanded_m"] == pytest.approx(steps[-1].length_m, abs=0.0005)
     assert step["placed_m"] == pytest.approx(steps[-2].placed_m, abs=0.0005)
     # the last landed step's cost (the walk may end before the next frame tells the final landing)
@@ -229,7 +229,7 @@ def test_the_page_and_its_assets_are_served_and_a_browser_gets_a_full_snapshot_t
         first, second = await _receive(ws, 2)
         assert first["kind"] == "full" and len(first["series"]["samples"]) == 500
         assert second["kind"] == "delta" and second["series"]["samples"] == []  # nothing new on the bus
-        assert first["gait"]["steps"] == 2 and first["stale_s"] is not None
+        assert first["gait"]["steps"] == len(walked.steps) and first["stale_s"] is not None
         await ws.close()
 
     _serve(feed, check)

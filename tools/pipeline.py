@@ -31,6 +31,7 @@ from protocol.bus import virtual_bus
 from protocol.catalog import TICK_MS
 from protocol.clock import MonotonicClock
 from protocol.enums import GaitState
+from sim.pace import default_max_time_s
 
 #: called after every tick with the tick's result and the controller core
 TickHook = Callable[[TickResult, ControllerCore], None]
@@ -151,11 +152,6 @@ def walk_config(cfg: Config, mode: str, channel: str) -> Config:
     return with_overrides(cfg, {"sim.mode": mode, "bus.interface": "virtual", "bus.channel": channel})
 
 
-def default_max_time_s(cycles: int) -> float:
-    """Simulated time a walk of ``cycles`` gait cycles may take before it counts as stalled."""
-    return 20.0 + 15.0 * cycles
-
-
 #: simulated seconds without a step landing after which a walk counts as stalled (its slowest
 #: steps take about 20 s: stick moves, a lean that waits for the swing foot to come free)
 STALL_S = 40.0
@@ -216,13 +212,14 @@ def drive(
 
 
 def walk(
-    cfg: Config, *, cycles: int, seed: int, mode: str = "sagittal", policy: StepPolicy | None = None,
+    cfg: Config, *, cycles: int, seed: int, mode: str | None = None, policy: StepPolicy | None = None,
     max_time_s: float | None = None, on_tick: Callable[[TickResult, ControllerCore, Any], None] | None = None,
     channel: str | None = None, telemetry: TelemetryLog | None = None, stall_s: float = STALL_S,
     compare_ratio: bool = True,
 ) -> WalkOutcome:
     """Walk ``cycles`` gait cycles (a left and a right step each) with everything in this process;
-    ends early at a fall, a controller fault, or a stall: ``max_time_s`` of simulated time (default
+    ``mode``: the simulation's (default ``cfg.sim.mode``). Ends early at a fall, a controller fault,
+    or a stall: ``max_time_s`` of simulated time (default
     :func:`default_max_time_s`) or ``stall_s`` without a step landing. Deterministic for ``seed``. ``on_tick(result, core,
     host)`` sees the nodes' host too (the simulation, for recording). ``compare_ratio``: the estimated
     X_CoM/X_SP against the simulation's ground truth every tick (``ratio_errors``; about 5 % of the
@@ -230,6 +227,7 @@ def walk(
     from nodes.host import NodesHost
 
     channel = channel or f"aider-walk-{seed}-{id(cfg)}"
+    mode = mode or cfg.sim.mode
     cfg = walk_config(cfg, mode, channel)
     max_time_s = max_time_s if max_time_s is not None else default_max_time_s(cycles)
     core = ControllerCore(cfg.controller, policy=policy)

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from config import ConfigError, default_config_path, load_config
+from protocol.catalog import TICK_MS
 from protocol.clock import MonotonicClock
 from tools.bench import median_of_runs
 
@@ -56,8 +57,8 @@ def _run_mode(cfg: Any, mode: str, seconds: float) -> dict[str, Any]:
         "realtime_factor_full": round(simulated / total_s, 2),
         "realtime_factor_bare_physics": round(simulated / physics_s, 2),
         "overhead_percent": round(100.0 * (total_s - physics_s) / physics_s, 1),
-        "us_per_tick_full": round(total_ns / 1e3 / (simulated * 50), 1),
-        "us_per_tick_physics": round(physics_ns / 1e3 / (simulated * 50), 1),
+        "us_per_tick_full": round(total_ns / 1e3 / (simulated * 1000.0 / TICK_MS), 1),
+        "us_per_tick_physics": round(physics_ns / 1e3 / (simulated * 1000.0 / TICK_MS), 1),
     }
 
 
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return {
         "benchmark": "sim",
         "physics_rate_hz": cfg.sim.physics.rate_hz,
-        "control_hz": cfg.sim.patient.control_hz,
+        "tick_hz": 1000.0 / TICK_MS,
         "repeats": args.repeats,
         "modes": modes,
         "goals": {"realtime_factor_min": GOAL_REALTIME, "overhead_percent_max": GOAL_OVERHEAD_PERCENT},
@@ -84,7 +85,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 def format_text(r: dict[str, Any]) -> str:
     lines = [
-        f"simulation benchmark: physics {r['physics_rate_hz']} Hz, control {r['control_hz']} Hz, one core, median of {r['repeats']} runs",
+        f"simulation benchmark: physics {r['physics_rate_hz']} Hz, bus tick {r['tick_hz']:g} Hz, one core, median of {r['repeats']} runs",
         f"{'mode':<10}{'sim s':>7}{'x real time':>13}{'bare physics':>14}{'overhead':>10}{'us/tick':>9}",
     ]
     for m in r["modes"]:

@@ -53,8 +53,8 @@ def patients_folder(args: argparse.Namespace, cfg: Config) -> Path:
 def add_mode_option(parser: argparse.ArgumentParser, what: str = "the simulation's mode") -> None:
     """``--mode``: one spelling and one default (the config's ``sim.mode``) for every command that simulates."""
     parser.add_argument("--mode", choices=("sagittal", "full3d"),
-                        help=f"{what} (default: sim.mode of the config, sagittal in config/default.yaml: the 3-D model "
-                             "does not walk yet, docs/SIM.md)")
+                        help=f"{what} (default: sim.mode of the config, full3d in config/default.yaml; "
+                             "sagittal: the same model held to the walking plane, docs/SIM.md)")
 
 
 def sim_mode(args: argparse.Namespace, cfg: Config) -> str:

@@ -210,11 +210,15 @@ def run(args: argparse.Namespace) -> int:
 
 def _waiting(patient: dict[str, Any] | None) -> str:
     """Where the patient stood when the walk stalled: its phase and for how long, and in the weight
-    shift the CoM's margin that its next stick lift waits for."""
+    shift where its CoM is against the window its next stick lift waits for."""
     if not patient:
         return ""
-    margin = f", CoM {patient['shift_margin_m']} m inside the support left for the lift" if "shift_margin_m" in patient else ""
-    return f": the patient in its {patient['phase']} for {patient['phase_s']} s{margin}"
+    where = ""
+    if "lift_window_m" in patient:
+        lo, hi = patient["lift_window_m"]
+        window = f"a stick may lift with it between {lo} and {hi} m" if lo <= hi else "no place to lift a stick from"
+        where = f", CoM at {patient['com_x_m']} m, {window}"
+    return f": the patient in its {patient['phase']} for {patient['phase_s']} s{where}"
 
 
 def _summary_text(s: dict[str, Any]) -> str:

@@ -1,8 +1,8 @@
 """The adaptive gait against fixed step lengths (paper Figs. 8 and 12).
 
 Every gait walks the same patient seeds (paired: the same stick-placement noise for each), ``N``
-gait cycles per walk. Per gait: stable gait cycles of ``N``, falls, the mean stick force and the
-mean upper-body torque of the completed steps (the simulation's ground truth of the patient's
+gait cycles per walk. Per gait: stable gait cycles of ``N``, falls, the mean stick force (per stick,
+and both sticks together) and the mean upper-body torque of the completed steps (the simulation's ground truth of the patient's
 arm torques, summed over the six arm joints), as the mean and spread over the seeds.
 """
 
@@ -39,6 +39,7 @@ class GaitStats:
         torque = [w["mean_arm_torque_nm"] for w in self.walks if w["mean_arm_torque_nm"] is not None]
         lengths = [x for w in self.walks for x in w["step_lengths_m"]]
         first_falls = [w["cycles_completed"] for w in self.walks if w["fell"]]
+        mean, std = _stat(force, np.mean), _stat(force, np.std)
         return {
             "gait": self.gait, "theta": None if self.theta is None else list(self.theta), "fixed_m": self.fixed_m,
             "walks": len(self.walks), "cycles_asked": cycles,
@@ -48,7 +49,9 @@ class GaitStats:
             "ends": sorted({w["end"] for w in self.walks if w["fell"]}),
             "cycles_at_fall": first_falls,
             "step_length_mean_m": _stat(lengths, np.mean), "step_length_std_m": _stat(lengths, np.std),
-            "stick_force_mean_n": _stat(force, np.mean), "stick_force_std_n": _stat(force, np.std),
+            "stick_force_mean_n": mean, "stick_force_std_n": std,
+            # both sticks together (the quantity of equation (10) summed over the two sticks): twice the per-stick mean
+            "both_sticks_force_mean_n": None if mean is None else 2.0 * mean, "both_sticks_force_std_n": None if std is None else 2.0 * std,
             "arm_torque_mean_nm": _stat(torque, np.mean), "arm_torque_std_nm": _stat(torque, np.std),
             "seeds": [w["job"]["seed"] for w in self.walks],
         }

@@ -35,12 +35,14 @@ class Plan:
     compare: bool = False
     compare_theta: tuple[float, float] | None = None  # None with learning: the learned one
     compare_walks: int = 10
-    mode: str = "sagittal"
+    mode: str | None = None  # None: the configuration's sim.mode
     workers: int = 2
     executor: str = "local"  # or "ray" (tools.experiment.cluster)
     address: str | None = None  # the Ray cluster's; None: a local Ray instance
 
     def __post_init__(self) -> None:
+        if self.mode is None:
+            self.mode = self.cfg.sim.mode
         for s in self.starts:
             if s not in STARTS:
                 raise ExperimentError(f"unknown start {s!r}: the paper's are {', '.join(STARTS)}")
@@ -215,14 +217,25 @@ def _run_check(r: LearningRun, n: int, max_updates: int) -> dict[str, Any]:
 #: intention varies): a standard deviation and a 10th-to-90th percentile range of at least
 X_SPREAD_STD = 0.08
 X_SPREAD_RANGE = 0.25
+#: ... about a median in the paper's range (its starts Xhat 0.6 and 0.9, its optimum 0.80)
+X_MEDIAN_RANGE = (0.55, 0.90)
 #: a fixed length cheaper than the adaptive gait must fall in at least this share of its walks
 CHEAPER_FALLS_SHARE = 0.3
+#: the paper's stick pressure, both sticks together, over a walk (Figs. 11 and 12a), N
+PAPER_BOTH_STICKS_N = (250.0, 500.0)
+#: among fixed lengths the stick force falls as the step lengthens: the shortest above the longest by
+FORCE_FALL_SHARE = 0.10
+#: the longest fixed length falls within LONG_FALL_CYCLES cycles in at least this share of its walks
+LONG_FALL_SHARE = 0.5
+LONG_FALL_CYCLES = 6
 
 
 def comparison_checks(gaits: list[GaitStats], n: int) -> dict[str, Any]:
-    """The adaptive gait walks N of N in every walk, its stick force below every fixed length that
-    never falls, every fixed length cheaper than it falls in CHEAPER_FALLS_SHARE of its walks; every
-    walk at the longest fixed length falls within 6 cycles; X_CoM/X_SP spreads (X_SPREAD_*)."""
+    """The adaptive gait walks N of N in every walk, its stick force (both sticks together) in the
+    paper's range and below every fixed length that never falls, every fixed length cheaper than it
+    falls in CHEAPER_FALLS_SHARE of its walks; among fixed lengths the force falls with the length
+    (FORCE_FALL_SHARE), the longest falls within LONG_FALL_CYCLES cycles in LONG_FALL_SHARE of its
+    walks; X_CoM/X_SP spreads (X_SPREAD_*) about a median in X_MEDIAN_RANGE."""
     s = {g.gait: g.summary(n) for g in gaits}
     adaptive = s.get(ADAPTIVE)
     if adaptive is None:
@@ -233,9 +246,13 @@ def comparison_checks(gaits: list[GaitStats], n: int) -> dict[str, Any]:
     cheaper = [k for k in fixed if s[k]["stick_force_mean_n"] is not None and adaptive["stick_force_mean_n"] is not None
                and s[k]["stick_force_mean_n"] < adaptive["stick_force_mean_n"]]
     torque_lower = all(adaptive["arm_torque_mean_nm"] < s[k]["arm_torque_mean_nm"] for k in fixed)
-    longest = max(fixed, key=float, default=None)
-    long_falls = (longest is not None and s[longest]["falls"] == s[longest]["walks"]
-                  and max(s[longest]["cycles_at_fall"]) < 6)
+    longest, shortest = max(fixed, key=float, default=None), min(fixed, key=float, default=None)
+    long_falls = longest is not None and sum(c < LONG_FALL_CYCLES for c in s[longest]["cycles_at_fall"]) >= LONG_FALL_SHARE * s[longest]["walks"]
+    short_force = None if shortest is None else s[shortest]["stick_force_mean_n"]
+    long_force = None if longest is None else s[longest]["stick_force_mean_n"]
+    force_fall = (None if short_force is None or long_force is None or not short_force
+                  else round(1.0 - long_force / short_force, 4))
+    both = adaptive["both_sticks_force_mean_n"]
     x = np.array([sw.x_ratio for sw in swings([w for g in gaits for w in g.walks]) if math.isfinite(sw.x_ratio)])
     spread = {"swings": len(x), **quantiles(x)}
     spread["range_p10_p90"] = None if not len(x) else round(spread["p90"] - spread["p10"], 4)
@@ -245,11 +262,18 @@ def comparison_checks(gaits: list[GaitStats], n: int) -> dict[str, Any]:
         # (the report names the non-falling fixed lengths, "none" there)
         "adaptive_force_below_every_non_falling_fixed": lower,
         "adaptive_walks_full": adaptive["falls"] == 0,
+        "adaptive_both_sticks_n": both,
+        "adaptive_both_sticks_in_paper_range": both is not None and PAPER_BOTH_STICKS_N[0] <= both <= PAPER_BOTH_STICKS_N[1],
         "cheaper_fixed": cheaper,
         "every_cheaper_fixed_falls": all(s[k]["falls"] >= CHEAPER_FALLS_SHARE * s[k]["walks"] for k in cheaper),
         "adaptive_torque_below_every_fixed": bool(fixed) and torque_lower,
+        "shortest_fixed": shortest,
         "longest_fixed": longest,
+        # 1 - F(longest) / F(shortest): how much less the longest fixed length costs than the shortest
+        "fixed_force_fall": force_fall,
+        "fixed_force_falls_with_length": force_fall is not None and force_fall >= FORCE_FALL_SHARE,
         "longest_fixed_falls_within_6_cycles": bool(long_falls),
         "x_ratio": spread,
+        "x_ratio_median_in_paper_range": bool(len(x)) and X_MEDIAN_RANGE[0] <= spread["p50"] <= X_MEDIAN_RANGE[1],
         "x_ratio_spreads": bool(len(x)) and spread["std"] >= X_SPREAD_STD and spread["range_p10_p90"] >= X_SPREAD_RANGE,
     }

@@ -36,12 +36,14 @@ class PopulationPlan:
     seed: int = 0
     updates: int = 15
     compare_walks: int = 10
-    mode: str = "sagittal"
+    mode: str | None = None  # None: the configuration's sim.mode
     workers: int = 2
     executor: str = "local"
     address: str | None = None
 
     def __post_init__(self) -> None:
+        if self.mode is None:
+            self.mode = self.cfg.sim.mode
         if not self.patients:
             raise ExperimentError("a population experiment needs at least one patient")
         names = [p.name for p in self.patients]

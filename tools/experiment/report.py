@@ -16,7 +16,8 @@ import numpy as np
 from config.files import write_bytes
 from controller.factory import step_bounds
 from tools.experiment.compare import ADAPTIVE
-from tools.experiment.experiment import (CHEAPER_FALLS_SHARE, LINE_AGREEMENT_M, X_SPREAD_RANGE, X_SPREAD_STD, Results,
+from tools.experiment.experiment import (CHEAPER_FALLS_SHARE, FORCE_FALL_SHARE, LINE_AGREEMENT_M, LONG_FALL_CYCLES, LONG_FALL_SHARE,
+                                         PAPER_BOTH_STICKS_N, X_MEDIAN_RANGE, X_SPREAD_RANGE, X_SPREAD_STD, Results,
                                          comparison_checks, learning_checks, step_line)
 from tools.experiment.falls import swings
 
@@ -27,6 +28,9 @@ PAPER = {
     "stable": "average stable steps per roll-out rise to 10 of 10 (Fig. 7b)",
     "torque": "the adaptive gait's upper-body torque lower than every fixed step length 0.10-0.20 m (Fig. 8)",
     "force": "the adaptive gait's stick pressure about as low as a fixed 0.20 m step, which falls within 6 of 10 steps (Fig. 12)",
+    "pressure": "the pressure of the sticks 250-500 N on the real AIDER (Fig. 12a; Fig. 11 falls from about 450 to 300 N while learning)",
+    "trend": "the stick pressure falls as the fixed step lengthens (Fig. 12)",
+    "x": "Xhat_CoM starts at 0.6 and 0.9, its optimum 0.80 (Fig. 7)",
 }
 COLORS = {"A": "tab:blue", "B": "tab:orange"}
 
@@ -323,24 +327,30 @@ def report(s: dict[str, Any]) -> str:
         c = s["comparison"]
         lines += ["## Adaptive against fixed step lengths (Figs. 8 and 12)", "",
                   f"Adaptive theta: alpha {c['theta'][0]:.3f}, Xhat_CoM {c['theta'][1]:.3f}.", "",
-                  "| gait | mean step m | stable cycles (mean, min) | falls | stick force N (mean ± std) | upper-body torque N·m (mean ± std) |",
-                  "|---|---|---|---|---|---|"]
+                  "| gait | mean step m | stable cycles (mean, min) | falls | stick force N, per stick (mean ± std) | both sticks N | upper-body torque N·m (mean ± std) |",
+                  "|---|---|---|---|---|---|---|"]
         for g in c["gaits"]:
             lines.append(f"| {g['gait']} | {_f(g['step_length_mean_m'], 3)} | {g['stable_cycles_mean']:.1f}, {g['stable_cycles_min']} | "
                          f"{g['falls']}/{g['walks']} | {_f(g['stick_force_mean_n'], 1)} ± {_f(g['stick_force_std_n'], 1)} | "
+                         f"{_f(g['both_sticks_force_mean_n'], 1)} ± {_f(g['both_sticks_force_std_n'], 1)} | "
                          f"{_f(g['arm_torque_mean_nm'], 1)} ± {_f(g['arm_torque_std_nm'], 1)} |")
         ch = c["checks"]
         adaptive = next(g for g in c["gaits"] if g["gait"] == ADAPTIVE)
         lines += ["", "| claim | paper | here |", "|---|---|---|",
                   f"| adaptive stick force below every fixed length that does not fall | {PAPER['force']} | "
                   f"{_yes(ch['adaptive_force_below_every_non_falling_fixed'])} (non-falling fixed: {', '.join(ch['non_falling_fixed']) or 'none'}) |",
-                  f"| the too-long fixed length falls within 6 cycles, the adaptive walks 10 of 10 | {PAPER['force']} | "
+                  f"| the adaptive gait's stick force, both sticks together, in {PAPER_BOTH_STICKS_N[0]:.0f}-{PAPER_BOTH_STICKS_N[1]:.0f} N | {PAPER['pressure']} | "
+                  f"{_f(ch['adaptive_both_sticks_n'], 1)} N: {_yes(ch['adaptive_both_sticks_in_paper_range'])} |",
+                  f"| the too-long fixed length falls within {LONG_FALL_CYCLES} cycles in {LONG_FALL_SHARE:.0%} of its walks, the adaptive walks 10 of 10 | {PAPER['force']} | "
                   f"{ch['longest_fixed']} m: {_yes(ch['longest_fixed_falls_within_6_cycles'])}; adaptive: {_yes(ch['adaptive_walks_full'])} |",
+                  f"| among fixed lengths the stick force falls as the step lengthens, {ch['shortest_fixed']} m above {ch['longest_fixed']} m by {FORCE_FALL_SHARE:.0%} | {PAPER['trend']} | "
+                  f"by {_pct(ch['fixed_force_fall'])}: {_yes(ch['fixed_force_falls_with_length'])} |",
                   f"| every fixed length cheaper than the adaptive gait falls in {CHEAPER_FALLS_SHARE:.0%} of its walks | {PAPER['force']} | "
                   f"{_yes(ch['every_cheaper_fixed_falls'])} (cheaper: {', '.join(ch['cheaper_fixed']) or 'none'}) |",
                   f"| upper-body torque | {PAPER['torque']} | {_yes(ch['adaptive_torque_below_every_fixed'])} |", "",
-                  f"X_CoM/X_SP at the swings' start over every compared walk: {_spread(ch['x_ratio'])} "
-                  f"(asked: sd >= {X_SPREAD_STD}, 10th-90th percentile range >= {X_SPREAD_RANGE}: {_yes(ch['x_ratio_spreads'])}); "
+                  f"X_CoM/X_SP at the swings' start over every compared walk: median {_f(ch['x_ratio']['p50'], 3)}, {_spread(ch['x_ratio'])} "
+                  f"(asked: median in {X_MEDIAN_RANGE[0]}-{X_MEDIAN_RANGE[1]}, {PAPER['x']}: {_yes(ch['x_ratio_median_in_paper_range'])}; "
+                  f"sd >= {X_SPREAD_STD}, 10th-90th percentile range >= {X_SPREAD_RANGE}: {_yes(ch['x_ratio_spreads'])}); "
                   f"the adaptive step lengths {_f(adaptive['step_length_mean_m'], 3)} ± {_f(adaptive['step_length_std_m'], 4)} m.", ""]
     return "\n".join(lines)
 
