@@ -76,14 +76,14 @@ def nnls(a: np.ndarray, b: np.ndarray, max_iter: int = 60) -> np.ndarray:
     passive = np.zeros(n, dtype=bool)
     w = a.T @ (b - a @ x)
     for _ in range(max_iter):
-        if passive.all() or not np.any(w[~passive] > 1e-10):
+        if passive.all() or not (w[~passive] > 1e-10).any():
             break
         j = int(np.argmax(np.where(passive, -np.inf, w)))
         passive[j] = True
         while True:
             z = np.zeros(n)
             z[passive] = np.linalg.lstsq(a[:, passive], b, rcond=None)[0]
-            if np.all(z[passive] > 0.0):
+            if (z[passive] > 0.0).all():
                 x = z
                 break
             blocking = passive & (z <= 0.0)
@@ -149,18 +149,16 @@ def distribute(wrench: np.ndarray, contacts: np.ndarray, friction: float, min_n:
     k = len(contacts)
     edges = np.array([[friction, 0.0, 1.0], [-friction, 0.0, 1.0]])
     rows = np.zeros((4 + 2 * k, 2 * k))
-    for c, r in enumerate(contacts):
-        for e, f in enumerate(edges):
-            col = 2 * c + e
-            moment = np.cross(r, f)
-            rows[:4, col] = (f[0], f[2], moment[0], moment[1])
+    # the edges' moments about the CoM, r x f, written out (np.cross's own products and
+    # differences: its argument handling costs more than the arithmetic on 3-vectors)
+    for c, (rx, ry, rz) in enumerate(contacts.tolist()):
+        for e, (fx, fy, fz) in enumerate(edges.tolist()):
+            rows[:4, 2 * c + e] = (fx, fz, ry * fz - rz * fy, rz * fx - rx * fz)
     rows[:4] *= ROW_WEIGHTS[:, None]
     rows[4:] = math.sqrt(FOOT_COST) * np.eye(2 * k)
     base = np.zeros(4)
-    for r in contacts:
-        f0 = np.array([0.0, 0.0, min_n])
-        m0 = np.cross(r, f0)
-        base += (f0[0], f0[2], m0[0], m0[1])
+    for rx, ry, rz in contacts.tolist():
+        base += (0.0, min_n, ry * min_n - rz * 0.0, rz * 0.0 - rx * min_n)
     rhs = np.zeros(4 + 2 * k)
     rhs[:4] = ROW_WEIGHTS * (wrench - base)
     lam = nnls(rows, rhs)
