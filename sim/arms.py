@@ -18,11 +18,9 @@ from config.sim_schema import SimConfig
 from sim.balance import Contact
 from sim.kinematics import Kinematics
 from sim.linalg import minimum_jerk
-from sim.model import arm_ik
+from sim.model import ARM_JOINTS, SIDES, arm_ik
 from sim.world import World
 
-SIDES = ("l", "r")
-ARM_JOINTS = ("shoulder_flexion", "shoulder_abduction", "elbow")
 SET_DOWN_PRESS_M = 0.02  # how far below the floor a set-down's tip path ends (over the path's last 30 %)
 SET_DOWN_SHARE = 0.3  # of the path's phase over which the press ramps in, past its end
 

@@ -33,11 +33,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from config.sim_schema import SimConfig
-from sim.arms import SET_DOWN_SHARE, SIDES, Arms
+from sim.arms import SET_DOWN_SHARE, Arms
 from sim.balance import Contact, WrenchGains, desired_wrench, distribute
 from sim.intention import Intention, StepIntention
 from sim.kinematics import Kinematics
 from sim.linalg import clamp
+from sim.model import SIDES
 from sim.sensors import Reading, rpy_from_matrix
 from sim.support import lift_window, swing_support
 from sim.truth import extent_on_line, pivot_margin

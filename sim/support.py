@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from config.sim_schema import FootConfig
-from sim.truth import convex_hull_2d, pivot_polygon
+from sim.truth import convex_hull_2d, pivot_polygon, successors
 
 
 def lift_window(ankles: np.ndarray, stays: np.ndarray, com_y: float, foot: FootConfig, *, shift_margin_m: float,
@@ -46,7 +46,7 @@ def window_on_line(hull: np.ndarray, y: float, margin: float) -> tuple[float, fl
     vertices have no inside)."""
     if len(hull) < 3:
         return math.inf, -math.inf
-    edge = np.concatenate((hull[1:], hull[:1])) - hull
+    edge = successors(hull) - hull
     normal = np.column_stack([edge[:, 1], -edge[:, 0]]) / np.hypot(edge[:, 0], edge[:, 1])[:, None]  # outward
     # inside by the margin: normal . ((x, y) - vertex) <= -margin, for every edge
     rhs = (normal * hull).sum(axis=1) - normal[:, 1] * y - margin

@@ -166,7 +166,7 @@ def polygon_area(polygon) -> float:
     return _hull_area(convex_hull_2d(polygon))
 
 
-def _next(a: np.ndarray) -> np.ndarray:
+def successors(a: np.ndarray) -> np.ndarray:
     """Each vertex's successor around the polygon (``np.roll(a, -1, axis=0)``, without its
     argument handling)."""
     return np.concatenate((a[1:], a[:1]))
@@ -177,7 +177,7 @@ def _hull_area(hull: np.ndarray) -> float:
     if len(hull) < 3:
         return 0.0
     x, y = (hull - hull[0]).T
-    return 0.5 * float(np.dot(x, _next(y)) - np.dot(_next(x), y))
+    return 0.5 * float(np.dot(x, successors(y)) - np.dot(successors(x), y))
 
 
 def _is_degenerate(hull: np.ndarray) -> bool:
@@ -199,7 +199,7 @@ def polygon_centroid(polygon) -> np.ndarray:
     if _is_degenerate(hull):
         raise ValueError("the centroid of a polygon with zero area is undefined")
     rel = hull - hull[0]  # relative coordinates keep the shoelace sums well conditioned
-    nxt = _next(rel)
+    nxt = successors(rel)
     w = rel[:, 0] * nxt[:, 1] - nxt[:, 0] * rel[:, 1]
     return hull[0] + ((rel + nxt) * w[:, None]).sum(axis=0) / (3.0 * w.sum())
 
@@ -330,7 +330,7 @@ def extent_on_line(polygon, point, heading=(1.0, 0.0)) -> tuple[float, float]:
     lateral = np.array([-h[1], h[0]])
     d = (hull - p) @ lateral  # signed lateral offset of each vertex from the line
     s = hull @ h  # position of each vertex along the heading
-    d2, s2 = _next(d), _next(s)
+    d2, s2 = successors(d), successors(s)
     crossing = np.sign(d) * np.sign(d2) < 0.0  # signs, not d * d2: that product underflows for tiny offsets
     hits = np.concatenate([s[d == 0.0], (s + d / np.where(crossing, d - d2, 1.0) * (s2 - s))[crossing]])
     if len(hits) == 0:
@@ -363,7 +363,7 @@ def radial_ratio(polygon, point) -> float:
     if r == 0.0:
         return 0.0
     u = (c - g) / r
-    edges = _next(hull) - hull
+    edges = successors(hull) - hull
     normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1)  # outward for a CCW polygon
     along = normals @ u
     slack = -((g - hull) * normals).sum(axis=1)  # > 0: g is strictly inside
