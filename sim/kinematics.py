@@ -39,20 +39,17 @@ class Kinematics:
         self.update()
 
     def update(self) -> None:
-        """Take the world's current link states (shared, read-only arrays)."""
+        """Take the world's current link states (shared, read-only arrays), and the whole body's
+        CoM and CoM velocity in them (read-only: a tick reads them a dozen times)."""
         links = self.world.link_states()
         self.link_com, self.link_vel, self.link_rot = links.com, links.com_velocity, links.rot
         self.joint_origin = links.origin[1:]
         # every link's rot @ axis at once (each axis is a unit vector of the joint frame: exact)
         self.joint_axis = (links.rot[1:] @ self.axis_local[:, :, None])[..., 0]
-
-    @property
-    def com(self) -> np.ndarray:
-        return self.masses @ self.link_com / self.masses.sum()
-
-    @property
-    def com_velocity(self) -> np.ndarray:
-        return self.masses @ self.link_vel / self.masses.sum()
+        self.com = self.masses @ self.link_com / self.masses.sum()
+        self.com_velocity = self.masses @ self.link_vel / self.masses.sum()
+        self.com.flags.writeable = self.com_velocity.flags.writeable = False
+        self._gravity: np.ndarray | None = None
 
     def point_jacobian(self, link: int, point: np.ndarray) -> np.ndarray:
         """(3, n) Jacobian of a world point fixed to ``link`` (a joint index; -1 = trunk) w.r.t. the joints."""
@@ -75,9 +72,13 @@ class Kinematics:
         return np.einsum("ij,ij->i", self.joint_axis, moment - cross(self.joint_origin, force))
 
     def gravity_torques(self) -> np.ndarray:
-        """Joint torques that hold every link against gravity (``-Q``, Q the generalised gravity force)."""
-        # Q_j = sum over links i moved by j of m_i (-g z) . (a_j x (c_i - o_j))
-        lever = self.link_com[None, :, :] - self.joint_origin[:, None, :]  # (n, n+1, 3)
-        moment_z = cross_z(self.joint_axis[:, None, :], lever)  # z component of a_j x r
-        q = -(GRAVITY * self.masses[None, :] * moment_z * self.moves).sum(axis=1)
-        return -q
+        """Joint torques that hold every link against gravity (``-Q``, Q the generalised gravity
+        force); read-only, computed once per :meth:`update` (the arms and the legs both ask)."""
+        if self._gravity is None:
+            # Q_j = sum over links i moved by j of m_i (-g z) . (a_j x (c_i - o_j))
+            lever = self.link_com[None, :, :] - self.joint_origin[:, None, :]  # (n, n+1, 3)
+            moment_z = cross_z(self.joint_axis[:, None, :], lever)  # z component of a_j x r
+            q = -(GRAVITY * self.masses[None, :] * moment_z * self.moves).sum(axis=1)
+            self._gravity = -q
+            self._gravity.flags.writeable = False
+        return self._gravity
