@@ -1,5 +1,6 @@
-"""Small vector helpers for the per-tick numerics, cheaper than numpy's general versions on the
-tiny arrays of the model (3-vectors, a dozen joints), with the same arithmetic.
+"""Small vector helpers for the per-tick numerics (no PyBullet, so the world and the sensors share
+them), cheaper than numpy's general versions on the tiny arrays of the model (3-vectors, a dozen
+joints), with the same arithmetic.
 
 ``np.cross`` and ``np.clip`` spend most of their time on argument handling (axis moves,
 broadcasting checks, dispatch) for arrays of a few elements; these do only the arithmetic, in
@@ -31,6 +32,14 @@ def cross_z(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def clamp(x: float, lo: float, hi: float) -> float:
     """``float(np.clip(x, lo, hi))`` for a scalar: ``min(max(x, lo), hi)`` (nan stays nan)."""
     return float(min(max(x, lo), hi))
+
+
+def rpy_from_matrix(rot: np.ndarray) -> np.ndarray:
+    """ZYX Euler angles (roll, pitch, yaw) of a rotation matrix; pitch > 0 is nose down about +y."""
+    pitch = -np.arcsin(clamp(rot[2, 0], -1.0, 1.0))
+    roll = np.arctan2(rot[2, 1], rot[2, 2])
+    yaw = np.arctan2(rot[1, 0], rot[0, 0])
+    return np.array([roll, pitch, yaw])
 
 
 def minimum_jerk(a: float) -> float:

@@ -39,7 +39,7 @@ from sim.intention import Intention, StepIntention
 from sim.kinematics import Kinematics
 from sim.linalg import clamp
 from sim.model import SIDES
-from sim.sensors import Reading, rpy_from_matrix
+from sim.sensors import Reading
 from sim.support import lift_window, swing_support
 from sim.truth import extent_on_line, pivot_margin
 from sim.world import GRAVITY, World
@@ -139,9 +139,9 @@ class Patient:
     def start(self) -> None:
         """Take the standing posture as the goals."""
         self.com_target = self.kin.com[:2].copy()
-        origin, rot = self.world.link_frame("trunk")
+        origin, _ = self.world.link_frame("trunk")
         self.hip_goal = np.array([origin[0], origin[2]])
-        self.pitch_goal = float(rpy_from_matrix(rot)[1])
+        self.pitch_goal = float(self.world.link_states().trunk_rpy[1])
         self.hip_height_nominal = float(origin[2])
 
     def _start_stick_moves(self) -> None:
@@ -355,7 +355,7 @@ class Patient:
         feet_mass = sum(w.masses[w.link_index[f"foot_{f}"] + 1] for f in SIDES if self.stance[f])
         return desired_wrench(
             w.total_mass - feet_mass, kin.com, kin.com_velocity, self.com_target if com_target is None else com_target, origin[2], self.hip_goal[1], links.com_velocity[0][2],
-            rpy_from_matrix(rot), rot.T @ links.base_angular_velocity, np.array([0.0, self.g.trunk_pitch_rad]), self.gains,
+            links.trunk_rpy, rot.T @ links.base_angular_velocity, np.array([0.0, self.g.trunk_pitch_rad]), self.gains,
         )
 
     def balance(self) -> BalanceResult:

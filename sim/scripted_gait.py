@@ -40,7 +40,7 @@ from sim.kinematics import Kinematics
 from sim.linalg import clamp, cross, minimum_jerk
 from sim.model import EXO_JOINTS, leg_ik
 from sim.patient import OTHER, SIDES, WRENCH_WEIGHTS, Patient, Phase
-from sim.sensors import Reading, rpy_from_matrix
+from sim.sensors import Reading
 from sim.world import GRAVITY, World
 
 
@@ -125,8 +125,8 @@ class ScriptedGait:
     def command(self, reading: Reading) -> None:
         """Position targets and torque feed-forward of the four joints (see the module doc)."""
         w, s, b, p = self.world, self.s, self.body, self.patient
-        origin, rot = w.link_frame("trunk")
-        pitch = float(rpy_from_matrix(rot)[1])
+        origin, _ = w.link_frame("trunk")
+        pitch = float(w.link_states().trunk_rpy[1])
         plantar = reading.heel_force_n + reading.toe_force_n
         for i, side in enumerate(SIDES):
             if p.stance[side] and (plantar[i] > s.foot_contact_n or side not in self.foot_x):

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from config.sim_schema import SensorsConfig
-from sim.linalg import clamp
+from sim.linalg import rpy_from_matrix
 from sim.model import EXO_JOINTS
 from sim.world import GRAVITY, World
 
@@ -34,14 +34,6 @@ def contact_force_on_robot(cp: tuple) -> np.ndarray:
 
 def quantise(value: np.ndarray | float, resolution: float) -> np.ndarray:
     return np.round(np.asarray(value) / resolution) * resolution
-
-
-def rpy_from_matrix(rot: np.ndarray) -> np.ndarray:
-    """ZYX Euler angles (roll, pitch, yaw) of a rotation matrix; pitch > 0 is nose down about +y."""
-    pitch = -np.arcsin(clamp(rot[2, 0], -1.0, 1.0))
-    roll = np.arctan2(rot[2, 1], rot[2, 2])
-    yaw = np.arctan2(rot[1, 0], rot[0, 0])
-    return np.array([roll, pitch, yaw])
 
 
 @dataclass(frozen=True)
@@ -125,14 +117,14 @@ class Sensors:
         tau = w.exo.applied
         sticks = np.array([self.stick_force("l"), self.stick_force("r")])
         stick_rpy = np.array([rpy_from_matrix(w.link_frame(f"forearm_{s}")[1]) for s in "lr"])
-        _, rot = w.link_frame("trunk")
-        omega_world = w.link_states().base_angular_velocity
+        links = w.link_states()
+        rot = links.rot[0]  # the trunk's
         specific = rot.T @ (w.base_acceleration + np.array([0.0, 0.0, GRAVITY]))
         heel_toe = np.array([self.plantar("l"), self.plantar("r")])
         # Noise drawn in the order of the Reading's fields (one seeded stream), then every value
         # quantised to its sensor's resolution in one vectorised round.
         raw = np.concatenate([
-            q, qd, tau, sticks, stick_rpy.ravel(), rpy_from_matrix(rot), rot.T @ omega_world, specific, heel_toe[:, 0], heel_toe[:, 1],
+            q, qd, tau, sticks, stick_rpy.ravel(), links.trunk_rpy, rot.T @ links.base_angular_velocity, specific, heel_toe[:, 0], heel_toe[:, 1],
         ])
         raw[12:] += self._noise()
         raw[29:] = np.maximum(raw[29:], 0.0)  # a load cell under a foot reads no pull

@@ -23,7 +23,7 @@ from sim.kinematics import Kinematics
 from sim.model import build_body
 from sim.patient import OTHER, SIDES, Patient, Phase, StepPlan
 from sim.scripted_gait import ScriptedGait
-from sim.sensors import Reading, Sensors, rpy_from_matrix
+from sim.sensors import Reading, Sensors
 from sim.truth import FallCriteria, fore_aft_ratio, pivot_polygon
 from sim.world import StancePose, World
 
@@ -254,7 +254,7 @@ class Walker:
         attitude, or the CoM's motion while the trunk is upright), which :attr:`fall_direction` keeps."""
         w = self.world
         origin, rot = w.link_frame("trunk")
-        roll, pitch, _ = rpy_from_matrix(rot).tolist()
+        roll, pitch, _ = w.link_states().trunk_rpy.tolist()
         reason = self._fall_criteria.check(w.touching_links(), roll, pitch, float(origin[2]))
         if reason is None:
             return None

@@ -43,6 +43,7 @@ from pybullet_utils.bullet_client import BulletClient  # noqa: E402
 
 from config.sim_schema import SimConfig
 from sim.actuation import LAW_ROWS, Gains, JointImpedance, law_torques, spring_law
+from sim.linalg import rpy_from_matrix
 from sim.model import (
     ANKLE_JOINTS,
     ARM_JOINT_NAMES,
@@ -129,6 +130,14 @@ class LinkStates:
     origin: np.ndarray  # (n + 1, 3)
     rot: np.ndarray  # (n + 1, 3, 3)
     base_angular_velocity: np.ndarray  # (3,)
+
+    @functools.cached_property
+    def trunk_rpy(self) -> np.ndarray:
+        """The trunk's (roll, pitch, yaw) (:func:`sim.linalg.rpy_from_matrix`), read-only: the
+        sensors, the patient, the legs and the fall check all read it, computed once per state."""
+        rpy = rpy_from_matrix(self.rot[0])
+        rpy.flags.writeable = False
+        return rpy
 
 
 class World:
