@@ -36,15 +36,26 @@ class Arms:
         self.tip_path: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}  # stick -> (start, goal, phase 0..1.3)
 
     def tip_point(self, side: str) -> np.ndarray:
-        """The stick tip's lowest point (on the floor when planted)."""
+        """The stick tip's lowest point (on the floor when planted); read-only, once per state."""
+        return self.kin.memo(("tip_point", side), self._tip_point, side)
+
+    def _tip_point(self, side: str) -> np.ndarray:
         origin, rot = self.world.link_frame(f"forearm_{side}")
         b = self.body
-        return origin - rot[:, 2] * (b.forearm_m + b.grip_m + b.stick_m) - np.array([0.0, 0.0, self.cfg.model.sticks.tip_radius_m])
+        tip = origin - rot[:, 2] * (b.forearm_m + b.grip_m + b.stick_m) - np.array([0.0, 0.0, self.cfg.model.sticks.tip_radius_m])
+        tip.flags.writeable = False
+        return tip
 
     def shoulder(self, side: str) -> np.ndarray:
+        """The shoulder joint's place; read-only, once per state."""
+        return self.kin.memo(("shoulder", side), self._shoulder, side)
+
+    def _shoulder(self, side: str) -> np.ndarray:
         origin, rot = self.world.link_frame("trunk")
         sign = 1.0 if side == "l" else -1.0
-        return origin + rot @ np.array([0.0, sign * self.body.shoulder_half_width_m, self.body.shoulder_above_hip_m])
+        shoulder = origin + rot @ np.array([0.0, sign * self.body.shoulder_half_width_m, self.body.shoulder_above_hip_m])
+        shoulder.flags.writeable = False
+        return shoulder
 
     def command(self, contacts: list[Contact], forces: np.ndarray) -> None:
         """Planted arms push their share of ``forces`` (the tip contacts among ``contacts``); moving

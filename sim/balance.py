@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,7 +86,7 @@ def _stacked_edges(mu: float, laterals: tuple[bool, ...]) -> np.ndarray:
 def distribute(
     wrench: np.ndarray,
     com: np.ndarray,
-    contacts: list[Contact],
+    contacts: Sequence[Contact],
     *,
     mu: float,
     min_normal_n: float,

@@ -9,6 +9,9 @@ without their floating-base frame pitfalls).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Hashable
+from typing import Any
+
 import numpy as np
 
 from sim.linalg import cross, cross_z
@@ -46,10 +49,19 @@ class Kinematics:
         self.joint_origin = links.origin[1:]
         # every link's rot @ axis at once (each axis is a unit vector of the joint frame: exact)
         self.joint_axis = (links.rot[1:] @ self.axis_local[:, :, None])[..., 0]
-        self.com = self.masses @ self.link_com / self.masses.sum()
-        self.com_velocity = self.masses @ self.link_vel / self.masses.sum()
-        self.com.flags.writeable = self.com_velocity.flags.writeable = False
-        self._gravity: np.ndarray | None = None
+        self.com = _read_only(self.masses @ self.link_com / self.masses.sum())
+        self.com_velocity = _read_only(self.masses @ self.link_vel / self.masses.sum())
+        self._memo: dict[Hashable, Any] = {}
+
+    def memo(self, key: Hashable, compute: Callable[..., Any], *args: Any) -> Any:
+        """``compute(*args)``, computed once per :meth:`update`: a value derived from this state that
+        several readers ask for in one tick (the patient's balance, the legs' feed-forward, the
+        sensors). Shared between them: arrays are read-only, sequences tuples."""
+        try:
+            return self._memo[key]
+        except KeyError:
+            value = self._memo[key] = compute(*args)
+            return value
 
     def point_jacobian(self, link: int, point: np.ndarray) -> np.ndarray:
         """(3, n) Jacobian of a world point fixed to ``link`` (a joint index; -1 = trunk) w.r.t. the joints."""
@@ -73,12 +85,18 @@ class Kinematics:
 
     def gravity_torques(self) -> np.ndarray:
         """Joint torques that hold every link against gravity (``-Q``, Q the generalised gravity
-        force); read-only, computed once per :meth:`update` (the arms and the legs both ask)."""
-        if self._gravity is None:
-            # Q_j = sum over links i moved by j of m_i (-g z) . (a_j x (c_i - o_j))
-            lever = self.link_com[None, :, :] - self.joint_origin[:, None, :]  # (n, n+1, 3)
-            moment_z = cross_z(self.joint_axis[:, None, :], lever)  # z component of a_j x r
-            q = -(GRAVITY * self.masses[None, :] * moment_z * self.moves).sum(axis=1)
-            self._gravity = -q
-            self._gravity.flags.writeable = False
-        return self._gravity
+        force); read-only, once per state (:meth:`memo`: the arms and the legs both ask)."""
+        return self.memo("gravity_torques", self._gravity_torques)
+
+    def _gravity_torques(self) -> np.ndarray:
+        # Q_j = sum over links i moved by j of m_i (-g z) . (a_j x (c_i - o_j))
+        lever = self.link_com[None, :, :] - self.joint_origin[:, None, :]  # (n, n+1, 3)
+        moment_z = cross_z(self.joint_axis[:, None, :], lever)  # z component of a_j x r
+        q = -(GRAVITY * self.masses[None, :] * moment_z * self.moves).sum(axis=1)
+        return _read_only(-q)
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """``a``, flagged read-only (a value shared through :meth:`Kinematics.memo`)."""
+    a.flags.writeable = False
+    return a

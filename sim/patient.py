@@ -324,9 +324,13 @@ class Patient:
 
     # -- balance --------------------------------------------------------------------------------
 
-    def foot_contacts(self) -> list[Contact]:
+    def foot_contacts(self) -> tuple[Contact, ...]:
         """Two contacts per stance foot, at the ankle across the sole: the passive ankle carries no
-        moment about its axis (its spring is a known moment), the sole carries a roll moment."""
+        moment about its axis (its spring is a known moment), the sole carries a roll moment. Once
+        per state and stance (the patient's balance and the legs' feed-forward both ask)."""
+        return self.kin.memo(("foot_contacts", self.stance["l"], self.stance["r"]), self._foot_contacts)
+
+    def _foot_contacts(self) -> tuple[Contact, ...]:
         half = self.cfg.model.foot.half_width_m
         out = []
         for f in SIDES:
@@ -334,16 +338,21 @@ class Patient:
                 j = self.ankle_idx[f]
                 for sign in (-1.0, 1.0):
                     out.append(Contact(f"foot_{f}", j, self.kin.joint_origin[j] + sign * half * self.kin.joint_axis[j], FOOT_COST))
-        return out
+        return tuple(out)
 
     def ankle_spring_moment(self) -> np.ndarray:
-        """The moment the stance ankles' springs put on the body above them."""
+        """The moment the stance ankles' springs put on the body above them; read-only, once per
+        state and stance."""
+        return self.kin.memo(("ankle_spring_moment", self.stance["l"], self.stance["r"]), self._ankle_spring_moment)
+
+    def _ankle_spring_moment(self) -> np.ndarray:
         ankle = self.cfg.model.joints.ankle
         moment = np.zeros(3)
         for f in SIDES:
             if self.stance[f]:
                 j = self.ankle_idx[f]
                 moment += ankle.stiffness_nm_rad * (self.world.q[j] - ankle.rest_rad) * self.kin.joint_axis[j]
+        moment.flags.writeable = False
         return moment
 
     def wrench(self, com_target: np.ndarray | None = None) -> np.ndarray:
@@ -361,7 +370,7 @@ class Patient:
     def balance(self) -> BalanceResult:
         """Distribute the wrench over the stance soles and the planted sticks and command the arms."""
         w, kin, g = self.world, self.kin, self.g
-        contacts = self.foot_contacts()
+        contacts = list(self.foot_contacts())
         for t in SIDES:
             if self.planted[t] or t in self.unloading:
                 tip, shoulder = self.tip_point(t), self.shoulder(t)
