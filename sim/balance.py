@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import nnls as _scipy_nnls
 
-from sim.linalg import cross
+from sim.linalg import cross, cross3, norm3
 
 
 def nnls(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -58,21 +58,27 @@ def pyramid_edges(mu: float, lateral: bool = True) -> np.ndarray:
     return edges
 
 
-_UP = np.array([0.0, 0.0, 1.0])
-_UP.flags.writeable = False
-
-
 def strut_edges(axis: np.ndarray, spread: float) -> np.ndarray:
     """(4, 3) edges of a pyramid of half-width ``spread`` about ``axis`` (pointing up), each scaled
-    to a unit vertical component like :func:`pyramid_edges`, so an edge's amount is its load."""
+    to a unit vertical component like :func:`pyramid_edges`, so an edge's amount is its load.
+
+    In plain floats (a handful of 3-vectors, where numpy's per-call cost dominates), with the
+    arithmetic of the numpy expressions: ``across = a x up / |a x up|``, ``up = across x a``, the
+    edges ``a + spread across``, ``a - spread across`` (the same as ``a + (-spread) across``),
+    ``a +- spread up``, each divided by its z."""
     a = np.asarray(axis, dtype=float)
-    a = a / np.linalg.norm(a)
-    across = cross(a, _UP)
-    norm = np.linalg.norm(across)
-    across = across / norm if norm > 1e-9 else np.array([1.0, 0.0, 0.0])
-    up = cross(across, a)
-    edges = np.array([a + spread * across, a - spread * across, a + spread * up, a - spread * up])
-    return edges / edges[:, 2:3]
+    a = (a / np.linalg.norm(a)).tolist()
+    across = cross3(a, (0.0, 0.0, 1.0))
+    norm = norm3(across)
+    across = tuple(c / norm for c in across) if norm > 1e-9 else (1.0, 0.0, 0.0)
+    up = cross3(across, a)
+    ax, ay, az = a
+    edges = []
+    for dx, dy, dz in (across, up):
+        for s in (spread, -spread):
+            x, y, z = ax + s * dx, ay + s * dy, az + s * dz
+            edges.append((x / z, y / z, z / z))
+    return np.array(edges)
 
 
 @functools.lru_cache(maxsize=64)
@@ -121,7 +127,7 @@ def distribute(
     lhs[:3] = flat.T
     lhs[3:6] = cross(r.repeat(4, axis=0), flat).T
     lhs[:6] *= weights[:, None]
-    lhs[_diagonal(n)] = np.repeat([math.sqrt(c.cost) for c in contacts], 4)
+    lhs.flat[6 * n :: n + 1] = [w for c in contacts for w in [math.sqrt(c.cost)] * 4]  # the diagonal of rows 6..
     # the minimum loads: min_normal_n along each contact's base direction (vertical, or its strut's
     # axis scaled to a unit vertical component); what they give: force sum f0, moment sum r x f0
     base_dir = np.zeros((k, 3))
@@ -129,19 +135,14 @@ def distribute(
     for i in struts:
         base_dir[i] = contacts[i].axis / contacts[i].axis[2]
     f0 = np.array([min_normal_n if c.min_n is None else c.min_n for c in contacts])[:, None] * base_dir
-    base = np.concatenate([f0.sum(axis=0), cross(r, f0).sum(axis=0)])
+    base = np.concatenate([f0, cross(r, f0)], axis=1).sum(axis=0)
     rhs = np.zeros(6 + n)
     rhs[:6] = weights * (wrench - base)
     lam = nnls(lhs, rhs)
     forces = (lam.reshape(k, 4, 1) * edges).sum(axis=1) + f0
-    residual = float(np.linalg.norm(lhs[:6] @ lam - rhs[:6]))
+    miss = lhs[:6] @ lam - rhs[:6]
+    residual = math.sqrt(miss.dot(miss))  # np.linalg.norm(miss), without its argument handling
     return forces, residual
-
-
-@functools.lru_cache(maxsize=16)
-def _diagonal(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Index of the regularisation's diagonal, rows 6.. of the (6 + n, n) system."""
-    return 6 + np.arange(n), np.arange(n)
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,8 @@ the same order, so their results are the same to the bit.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -22,6 +24,20 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     out[..., 1] = a2 * b0 - a0 * b2
     out[..., 2] = a0 * b1 - a1 * b0
     return out
+
+
+def cross3(a, b) -> tuple[float, float, float]:
+    """:func:`cross` of two 3-sequences of floats, in floats: the same products and differences."""
+    a0, a1, a2 = a
+    b0, b1, b2 = b
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+def norm3(v) -> float:
+    """``np.linalg.norm`` of a 3-sequence of floats: the square root of numpy's ``v . v`` (what
+    ``norm`` computes, without its argument handling)."""
+    v = np.array(v, dtype=float)
+    return math.sqrt(v.dot(v))
 
 
 def cross_z(a: np.ndarray, b: np.ndarray) -> np.ndarray:
