@@ -176,14 +176,13 @@ def desired_wrench(
 ) -> np.ndarray:
     """(6,) force and moment about the CoM that pull the HHEA toward its CoM and posture targets."""
     g = gains
-    force = np.array([
+    return np.array([
+        # the force
         g.fore_aft_n_m * (com_target_xy[0] - com[0]) - g.fore_aft_ns_m * com_velocity[0],
         g.lateral_n_m * (com_target_xy[1] - com[1]) - g.lateral_ns_m * com_velocity[1],
         mass_kg * gravity + g.height_n_m * (hip_height_target - hip_height) - g.height_ns_m * hip_vz,
-    ])
-    moment = np.array([
+        # the moment
         g.tilt_nm_rad * (trunk_target_rp[0] - trunk_rpy[0]) - g.tilt_nms_rad * trunk_rate[0],
         g.tilt_nm_rad * (trunk_target_rp[1] - trunk_rpy[1]) - g.tilt_nms_rad * trunk_rate[1],
         -g.yaw_nms_rad * trunk_rate[2],
     ])
-    return np.concatenate([force, moment])

@@ -38,6 +38,7 @@ class Kinematics:
         self.moves = np.zeros((n, n + 1), dtype=bool)
         for link in range(n):
             self.moves[self.ancestors[link], link + 1] = True
+        self._moves_float = self.moves.astype(float)
         self.masses = world.masses
         self.update()
 
@@ -77,7 +78,7 @@ class Kinematics:
         world forces at points of links produce, all at once. Joint j's share of force f at p is
         ``a_j . ((p - o_j) x f) = a_j . (p x f - o_j x f)``, so the forces on the links j moves
         sum first: ``a_j . (sum p x f - o_j x sum f)``."""
-        moved = self.moves[:, np.asarray(links) + 1].astype(float)  # (n, k): joint j moves contact c's link
+        moved = self._moves_float[:, np.asarray(links) + 1]  # (n, k): joint j moves contact c's link
         points, forces = np.asarray(points, dtype=float), np.asarray(forces, dtype=float)
         moment = moved @ cross(points, forces)  # (n, 3)
         force = moved @ forces

@@ -374,7 +374,8 @@ class Patient:
         for t in SIDES:
             if self.planted[t] or t in self.unloading:
                 tip, shoulder = self.tip_point(t), self.shoulder(t)
-                axis = (shoulder - tip) / np.linalg.norm(shoulder - tip)
+                along = shoulder - tip
+                axis = along / np.linalg.norm(along)
                 cost = STICK_COST * (1.0 + 400.0 * (self.unloading[t] / g.unload_time_s) ** 2) if t in self.unloading else STICK_COST
                 # in a swing both sticks stay pressed down as when it started: the one the balance
                 # would spare lifts off its tip and the body loses a support it relies on; in the

@@ -243,7 +243,7 @@ class Walker:
         self.kin.update()
         self.margin = p.support_margin()
         step = self.steps[-1] if self.steps and not self.steps[-1].landed else self._next
-        step.add(float(np.sum(reading.stick_force_n)), float(np.sum(np.abs(w.arms.applied))), self.margin)
+        step.add(float(reading.stick_force_n.sum()), float(np.abs(w.arms.applied).sum()), self.margin)
         self.fall = self._fall_reason()
         return self.sensors.read()
 

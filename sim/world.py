@@ -163,6 +163,7 @@ class World:
         assert tuple(self.joint_index) == JOINT_ORDER, "URDF joint order changed"
         self.link_index = {c.getJointInfo(self.robot, i)[12].decode(): i for i in range(c.getNumJoints(self.robot))}
         self.link_index["trunk"] = -1
+        self._link_name = {i: n for n, i in self.link_index.items()}
         self.masses = np.array([c.getDynamicsInfo(self.robot, i)[0] for i in range(-1, c.getNumJoints(self.robot))])
         self.total_mass = float(self.masses.sum())
         self._base_com_local = np.array(c.getDynamicsInfo(self.robot, -1)[3])  # the trunk's inertial frame offset
@@ -382,8 +383,7 @@ class World:
         return float(sum(cp[9] for cp in self.contacts(link)))
 
     def touching_links(self) -> set[str]:
-        names = {i: n for n, i in self.link_index.items()}
-        return {names[i] for i in self._floor_contacts()}
+        return {self._link_name[i] for i in self._floor_contacts()}
 
     def link_frame(self, link: str) -> tuple[np.ndarray, np.ndarray]:
         """World position of the link frame's origin and its rotation matrix (read-only arrays)."""
