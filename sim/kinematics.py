@@ -40,6 +40,7 @@ class Kinematics:
             self.moves[self.ancestors[link], link + 1] = True
         self._moves_float = self.moves.astype(float)
         self.masses = world.masses
+        self._mass_sum = self.masses.sum()
         self.update()
 
     def update(self) -> None:
@@ -50,8 +51,8 @@ class Kinematics:
         self.joint_origin = links.origin[1:]
         # every link's rot @ axis at once (each axis is a unit vector of the joint frame: exact)
         self.joint_axis = (links.rot[1:] @ self.axis_local[:, :, None])[..., 0]
-        self.com = _read_only(self.masses @ self.link_com / self.masses.sum())
-        self.com_velocity = _read_only(self.masses @ self.link_vel / self.masses.sum())
+        self.com = _read_only(self.masses @ self.link_com / self._mass_sum)
+        self.com_velocity = _read_only(self.masses @ self.link_vel / self._mass_sum)
         self._memo: dict[Hashable, Any] = {}
 
     def memo(self, key: Hashable, compute: Callable[..., Any], *args: Any) -> Any:

@@ -123,21 +123,16 @@ class StancePose:
 class LinkStates:
     """One state of the HHEA's links, base first (index 0, link k at k + 1): CoM positions and
     velocities, frame origins (a link's frame is at its parent joint; the base's frame is the
-    trunk's, not its inertial frame) and frame rotations; and the base's angular velocity."""
+    trunk's, not its inertial frame) and frame rotations; the base's angular velocity, and the trunk's
+    roll, pitch and yaw (:func:`sim.linalg.rpy_from_matrix`: the sensors, the patient, the legs and
+    the fall check all read them)."""
 
     com: np.ndarray  # (n + 1, 3)
     com_velocity: np.ndarray  # (n + 1, 3)
     origin: np.ndarray  # (n + 1, 3)
     rot: np.ndarray  # (n + 1, 3, 3)
     base_angular_velocity: np.ndarray  # (3,)
-
-    @functools.cached_property
-    def trunk_rpy(self) -> np.ndarray:
-        """The trunk's (roll, pitch, yaw) (:func:`sim.linalg.rpy_from_matrix`), read-only: the
-        sensors, the patient, the legs and the fall check all read it, computed once per state."""
-        rpy = rpy_from_matrix(self.rot[0])
-        rpy.flags.writeable = False
-        return rpy
+    trunk_rpy: np.ndarray  # (3,)
 
 
 class World:
@@ -354,9 +349,10 @@ class World:
             vel[1:] = [st[6] for st in states]
             origin[1:] = [st[4] for st in states]
             rot[1:] = np.reshape([c.getMatrixFromQuaternion(st[5]) for st in states], (n - 1, 3, 3))
-            for a in (com, vel, origin, rot):
+            trunk_rpy = rpy_from_matrix(rot[0])
+            for a in (com, vel, origin, rot, trunk_rpy):
                 a.flags.writeable = False
-            self._links = LinkStates(com, vel, origin, rot, np.array(base_ang))
+            self._links = LinkStates(com, vel, origin, rot, np.array(base_ang), trunk_rpy)
         return self._links
 
     def link_positions(self) -> np.ndarray:
