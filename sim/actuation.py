@@ -122,7 +122,7 @@ class JointImpedance:
         Returns the rejections."""
         positions, torques = np.asarray(positions, dtype=float), np.asarray(torques, dtype=float)
         ok = np.isfinite(positions) & np.isfinite(torques) & (self.lower <= positions) & (positions <= self.upper)
-        rejected = int(len(ok) - ok.sum())
+        rejected = len(ok) - np.count_nonzero(ok)
         cols: slice | np.ndarray = slice(None)
         if rejected:
             positions, torques, cols = positions[ok], torques[ok], ok
@@ -135,9 +135,8 @@ class JointImpedance:
     def _track_law(self, cols: int | slice | np.ndarray) -> None:
         """The track loop ``K (q* - q) + D (qd* - qd) + tau_ff`` within the command's limit, for
         the joints ``cols`` (one index, or several at once) from their commands."""
-        g, law, limit = self.gains, self._law, self.limit[cols]
-        law[0, cols], law[1, cols], law[2, cols] = g.stiffness[cols], self.target[cols], g.damping[cols]
-        law[3, cols], law[4, cols], law[5, cols], law[6, cols] = self.velocity_ff[cols], self.torque_ff[cols], -limit, limit
+        g, limit = self.gains, self.limit[cols]
+        self._law[:, cols] = (g.stiffness[cols], self.target[cols], g.damping[cols], self.velocity_ff[cols], self.torque_ff[cols], -limit, limit)
 
     def _set_law(self, i: int) -> None:
         """Joint ``i``'s loop coefficients for its mode. Track: :meth:`_track_law`; hold and quick stop: ``K_h (q_latched - q) + D_h (0 - qd)``
@@ -150,6 +149,11 @@ class JointImpedance:
             self._law[:, i] = (g.hold_stiffness[i], self.hold_position[i], g.hold_damping[i], 0.0, 0.0, -limit, limit)
         else:
             self._law[:, i] = 0.0
+
+    @property
+    def latch_pending(self) -> bool:
+        """Whether a joint entered hold or quick stop since the last :meth:`latch` (rarely)."""
+        return self._latch_pending
 
     def latch(self, q: np.ndarray) -> None:
         """Hold and quick stop latch the position measured when entered: from ``q``, these joints'
