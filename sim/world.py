@@ -292,8 +292,10 @@ class World:
         self.read_joints()
         idx = self._torque_idx_array
         q = self.q[idx]  # the law's order
-        self.exo.latch(q[self._exo_slice])
-        self.arms.latch(q[self._arm_slice])
+        if self.exo.latch_pending:
+            self.exo.latch(q[self._exo_slice])
+        if self.arms.latch_pending:
+            self.arms.latch(q[self._arm_slice])
         forces = law_torques(self._law_rows, q, self.qd[idx])
         self.exo.applied, self.arms.applied = forces[self._exo_slice], forces[self._arm_slice]
         self.tau[idx] = forces
@@ -339,16 +341,12 @@ class World:
             base_pos, base_orn = c.getBasePositionAndOrientation(self.robot)
             base_lin, base_ang = self._base_velocity, self._base_angular_velocity
             states = c.getLinkStates(self.robot, self._all_joints, computeLinkVelocity=1)
-            n = len(states) + 1
-            com, vel, origin = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
-            rot = np.empty((n, 3, 3))
-            com[0], vel[0] = base_pos, base_lin
-            rot[0] = np.reshape(c.getMatrixFromQuaternion(base_orn), (3, 3))
+            matrix = c.getMatrixFromQuaternion
+            com = np.array([base_pos] + [st[0] for st in states])
+            vel = np.array([base_lin] + [st[6] for st in states])
+            rot = np.array([matrix(base_orn)] + [matrix(st[5]) for st in states]).reshape(-1, 3, 3)
+            origin = np.array([(0.0, 0.0, 0.0)] + [st[4] for st in states])
             origin[0] = com[0] - rot[0] @ self._base_com_local
-            com[1:] = [st[0] for st in states]
-            vel[1:] = [st[6] for st in states]
-            origin[1:] = [st[4] for st in states]
-            rot[1:] = np.reshape([c.getMatrixFromQuaternion(st[5]) for st in states], (n - 1, 3, 3))
             trunk_rpy = rpy_from_matrix(rot[0])
             for a in (com, vel, origin, rot, trunk_rpy):
                 a.flags.writeable = False
