@@ -34,6 +34,14 @@ class Arms:
         self.forearm_idx = {s: world.joint_index[f"elbow_{s}"] for s in SIDES}
         self.joints = {s: [world.joint_index[f"{j}_{s}"] for j in ARM_JOINTS] for s in SIDES}
         self.tip_path: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}  # stick -> (start, goal, phase 0..1.3)
+        b = self.body
+        # the fixed geometry of the tip and shoulder points, and of the arms' command bounds
+        self._stick_reach = b.forearm_m + b.grip_m + b.stick_m  # from the elbow along the forearm's -z
+        self._tip_radius = np.array([0.0, 0.0, cfg.model.sticks.tip_radius_m])
+        self._shoulder_local = {s: np.array([0.0, sign * b.shoulder_half_width_m, b.shoulder_above_hip_m])
+                                for s, sign in zip(SIDES, (1.0, -1.0))}
+        arms = world.arms
+        self._target_lo, self._target_hi = arms.lower + 1e-3, arms.upper - 1e-3
 
     def tip_point(self, side: str) -> np.ndarray:
         """The stick tip's lowest point (on the floor when planted); read-only, once per state."""
@@ -41,8 +49,7 @@ class Arms:
 
     def _tip_point(self, side: str) -> np.ndarray:
         origin, rot = self.world.link_frame(f"forearm_{side}")
-        b = self.body
-        tip = origin - rot[:, 2] * (b.forearm_m + b.grip_m + b.stick_m) - np.array([0.0, 0.0, self.cfg.model.sticks.tip_radius_m])
+        tip = origin - rot[:, 2] * self._stick_reach - self._tip_radius
         tip.flags.writeable = False
         return tip
 
@@ -52,8 +59,7 @@ class Arms:
 
     def _shoulder(self, side: str) -> np.ndarray:
         origin, rot = self.world.link_frame("trunk")
-        sign = 1.0 if side == "l" else -1.0
-        shoulder = origin + rot @ np.array([0.0, sign * self.body.shoulder_half_width_m, self.body.shoulder_above_hip_m])
+        shoulder = origin + rot @ self._shoulder_local[side]
         shoulder.flags.writeable = False
         return shoulder
 
@@ -89,5 +95,4 @@ class Arms:
                 targets += [w.q[j] for j in joints]
                 torques += [tau[j] for j in joints]
         arms = w.arms
-        arms.track(np.minimum(np.maximum(targets, arms.lower + 1e-3), arms.upper - 1e-3),
-                   np.minimum(np.maximum(torques, -arms.rated), arms.rated))
+        arms.track(np.minimum(np.maximum(targets, self._target_lo), self._target_hi), np.minimum(np.maximum(torques, -arms.rated), arms.rated))

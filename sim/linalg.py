@@ -34,8 +34,9 @@ def cross3(a, b) -> tuple[float, float, float]:
 
 
 def norm3(v) -> float:
-    """``np.linalg.norm`` of a 3-sequence of floats: the square root of numpy's ``v . v`` (what
-    ``norm`` computes, without its argument handling)."""
+    """``np.linalg.norm`` of a 3-vector (a sequence of floats or an array): the square root of
+    numpy's ``v . v`` of it as a contiguous array (what ``norm`` computes, without its argument
+    handling)."""
     v = np.array(v, dtype=float)
     return math.sqrt(v.dot(v))
 

@@ -37,7 +37,7 @@ from sim.arms import SET_DOWN_SHARE, Arms
 from sim.balance import Contact, WrenchGains, desired_wrench, distribute
 from sim.intention import Intention, StepIntention
 from sim.kinematics import Kinematics
-from sim.linalg import clamp
+from sim.linalg import clamp, norm3
 from sim.model import SIDES
 from sim.sensors import Reading
 from sim.support import lift_window, swing_support
@@ -375,7 +375,7 @@ class Patient:
             if self.planted[t] or t in self.unloading:
                 tip, shoulder = self.tip_point(t), self.shoulder(t)
                 along = shoulder - tip
-                axis = along / np.linalg.norm(along)
+                axis = along / norm3(along)
                 cost = STICK_COST * (1.0 + 400.0 * (self.unloading[t] / g.unload_time_s) ** 2) if t in self.unloading else STICK_COST
                 # in a swing both sticks stay pressed down as when it started: the one the balance
                 # would spare lifts off its tip and the body loses a support it relies on; in the

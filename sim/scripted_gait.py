@@ -37,7 +37,7 @@ from config.sim_schema import GaitConfig, SimConfig
 from sim.actuation import Mode
 from sim.balance import distribute
 from sim.kinematics import Kinematics
-from sim.linalg import clamp, cross, minimum_jerk
+from sim.linalg import clamp, cross3, minimum_jerk
 from sim.model import EXO_JOINTS, leg_ik
 from sim.patient import OTHER, SIDES, WRENCH_WEIGHTS, Patient, Phase
 from sim.sensors import Reading
@@ -168,9 +168,8 @@ class ScriptedGait:
         wrench = p.wrench(np.array([self.com_goal_x, 0.0]))
         for i, side in enumerate(SIDES):
             _, rot = w.link_frame(f"forearm_{side}")
-            up = np.array([0.0, 0.0, float(reading.stick_force_n[i]) * rot[2, 2]])
-            wrench[:3] -= up
-            wrench[3:] -= cross(p.tip_point(side) - com, up)
+            up = (0.0, 0.0, float(reading.stick_force_n[i]) * rot[2, 2])
+            wrench -= (*up, *cross3((p.tip_point(side) - com).tolist(), up))  # its force and its moment about the CoM
         feet = p.foot_contacts()
         forces, _ = distribute(wrench, com, feet, mu=0.5, min_normal_n=self.s.min_contact_n, weights=WRENCH_WEIGHTS,
                                known_moment=p.ankle_spring_moment())

@@ -75,14 +75,14 @@ class Sensors:
              cfg.accel_noise_m_s2, cfg.force_noise_n, cfg.force_noise_n],
             [2, 6, 3, 3, 3, 2, 2],
         )
-        self._noisy = self._noise_std > 0
-        self._noise_draws = int(self._noisy.sum())
+        self._noisy = np.flatnonzero(self._noise_std > 0)
+        self._noisy_std = self._noise_std[self._noisy]
 
     def _noise(self) -> np.ndarray:
         """One tick's noise of the noisy values: the draws of ``normal(0, std)`` value by value,
         in one call (the same numbers from the stream)."""
         noise = np.zeros(len(self._noise_std))
-        noise[self._noisy] = self._noise_std[self._noisy] * self.rng.standard_normal(self._noise_draws)
+        noise[self._noisy] = self._noisy_std * self.rng.standard_normal(len(self._noisy))
         return noise
 
     def stick_force(self, side: str) -> float:
