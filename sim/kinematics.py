@@ -41,6 +41,7 @@ class Kinematics:
         self._moves_float = self.moves.astype(float)
         self.masses = world.masses
         self._mass_sum = self.masses.sum()
+        self._link_weights = GRAVITY * self.masses[None, :]  # (1, n + 1)
         self.update()
 
     def update(self) -> None:
@@ -91,11 +92,10 @@ class Kinematics:
         return self.memo("gravity_torques", self._gravity_torques)
 
     def _gravity_torques(self) -> np.ndarray:
-        # Q_j = sum over links i moved by j of m_i (-g z) . (a_j x (c_i - o_j))
+        # Q_j = sum over links i moved by j of m_i (-g z) . (a_j x (c_i - o_j)); -Q sums m_i g (a_j x r)_z
         lever = self.link_com[None, :, :] - self.joint_origin[:, None, :]  # (n, n+1, 3)
         moment_z = cross_z(self.joint_axis[:, None, :], lever)  # z component of a_j x r
-        q = -(GRAVITY * self.masses[None, :] * moment_z * self.moves).sum(axis=1)
-        return _read_only(-q)
+        return _read_only((self._link_weights * moment_z * self._moves_float).sum(axis=1))
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:

@@ -87,6 +87,8 @@ class Patient:
         self.intention = Intention(cfg.patient.intention, rng.spawn(1)[0])
         self.gains = WrenchGains()
         self.ankle_idx = {s: world.joint_index[f"ankle_{s}"] for s in SIDES}
+        self._foot_mass = {s: world.masses[world.link_index[f"foot_{s}"] + 1] for s in SIDES}
+        self._trunk_target_rp = np.array([0.0, self.g.trunk_pitch_rad])  # upright, leaning forward as configured
         self.arms = Arms(world, kin, cfg)
         self.phase, self.phase_t = Phase.SETTLE, 0.0
         self.walking = True  # the gait cycle starts only while set (under the controller: its gait state)
@@ -123,7 +125,7 @@ class Patient:
         (by default every planted tip): the pivot polygon in 3-D, its fore-aft extent in the
         sagittal mode, where the plane spring holds the trunk laterally."""
         tips = [s for s in SIDES if self.planted[s]] if tips is None else tips
-        ankles = [tuple(self.ankle_xy(s).tolist()) for s in SIDES if self.stance[s]]
+        ankles = [tuple(self.kin.joint_origin[self.ankle_idx[s], :2].tolist()) for s in SIDES if self.stance[s]]
         tip_xy = [tuple(self.tip_point(s)[:2].tolist()) for s in tips]
         com = self.kin.com[:2].tolist()
         if self.cfg.mode == "sagittal":
@@ -361,10 +363,10 @@ class Patient:
         w, kin = self.world, self.kin
         links = w.link_states()
         origin, rot = w.link_frame("trunk")
-        feet_mass = sum(w.masses[w.link_index[f"foot_{f}"] + 1] for f in SIDES if self.stance[f])
+        feet_mass = sum(self._foot_mass[f] for f in SIDES if self.stance[f])
         return desired_wrench(
             w.total_mass - feet_mass, kin.com, kin.com_velocity, self.com_target if com_target is None else com_target, origin[2], self.hip_goal[1], links.com_velocity[0][2],
-            links.trunk_rpy, rot.T @ links.base_angular_velocity, np.array([0.0, self.g.trunk_pitch_rad]), self.gains,
+            links.trunk_rpy, rot.T @ links.base_angular_velocity, self._trunk_target_rp, self.gains,
         )
 
     def balance(self) -> BalanceResult:

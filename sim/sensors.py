@@ -33,7 +33,9 @@ def contact_force_on_robot(cp: tuple) -> np.ndarray:
 
 
 def quantise(value: np.ndarray | float, resolution: float) -> np.ndarray:
-    return np.round(np.asarray(value) / resolution) * resolution
+    """``value`` to the nearest multiple of ``resolution`` (``np.round``: halves to even; its
+    method, without the function's dispatch)."""
+    return (np.asarray(value) / resolution).round() * resolution
 
 
 @dataclass(frozen=True)
