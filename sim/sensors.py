@@ -63,6 +63,7 @@ class Sensors:
         self._exo = [world.joint_index[n] for n in EXO_JOINTS]
         foot = world.cfg.model.foot
         self._heel_toe_split_x = (foot.toe_front_m - foot.heel_back_m) / 2
+        self._gravity = np.array([0.0, 0.0, GRAVITY])  # what an accelerometer at rest reads, world frame
         # each value's resolution, in the order :meth:`read` lays the values out
         self._resolution = np.repeat(
             [cfg.encoder_resolution_rad, 0.001, 0.05, cfg.force_resolution_n, cfg.imu_orientation_resolution_rad,
@@ -117,16 +118,16 @@ class Sensors:
         q = w.q[self._exo]
         qd = w.qd[self._exo]
         tau = w.exo.applied
-        sticks = np.array([self.stick_force("l"), self.stick_force("r")])
-        stick_rpy = np.array([rpy_from_matrix(w.link_frame(f"forearm_{s}")[1]) for s in "lr"])
+        sticks = (self.stick_force("l"), self.stick_force("r"))
+        stick_rpy = [rpy_from_matrix(w.link_frame(f"forearm_{s}")[1]) for s in "lr"]
         links = w.link_states()
         rot = links.rot[0]  # the trunk's
-        specific = rot.T @ (w.base_acceleration + np.array([0.0, 0.0, GRAVITY]))
-        heel_toe = np.array([self.plantar("l"), self.plantar("r")])
+        specific = rot.T @ (w.base_acceleration + self._gravity)
+        (heel_l, toe_l), (heel_r, toe_r) = self.plantar("l"), self.plantar("r")
         # Noise drawn in the order of the Reading's fields (one seeded stream), then every value
         # quantised to its sensor's resolution in one vectorised round.
         raw = np.concatenate([
-            q, qd, tau, sticks, stick_rpy.ravel(), links.trunk_rpy, rot.T @ links.base_angular_velocity, specific, heel_toe[:, 0], heel_toe[:, 1],
+            q, qd, tau, sticks, *stick_rpy, links.trunk_rpy, rot.T @ links.base_angular_velocity, specific, (heel_l, heel_r), (toe_l, toe_r),
         ])
         raw[12:] += self._noise()
         raw[29:] = np.maximum(raw[29:], 0.0)  # a load cell under a foot reads no pull
