@@ -14,16 +14,13 @@ import math
 import numpy as np
 
 
+_NEXT, _AFTER_NEXT = np.array([1, 2, 0]), np.array([2, 0, 1])  # component k's successors in a cross product
+
+
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``np.cross(a, b)`` of (..., 3) arrays (broadcast): the same products and differences."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    x = a1 * b2 - a2 * b1
-    out = np.empty(np.shape(x) + (3,))
-    out[..., 0] = x
-    out[..., 1] = a2 * b0 - a0 * b2
-    out[..., 2] = a0 * b1 - a1 * b0
-    return out
+    """``np.cross(a, b)`` of (..., 3) float arrays (broadcast): the same products and differences,
+    ``a_{k+1} b_{k+2} - a_{k+2} b_{k+1}`` for every component k at once."""
+    return a.take(_NEXT, axis=-1) * b.take(_AFTER_NEXT, axis=-1) - a.take(_AFTER_NEXT, axis=-1) * b.take(_NEXT, axis=-1)
 
 
 def cross3(a, b) -> tuple[float, float, float]:
