@@ -237,8 +237,7 @@ class Walker:
         p.balance()
         if self.gait is not None:
             self.gait.command(reading)
-        for _ in range(self.physics_steps):
-            w.step()
+        w.step(self.physics_steps)
         self.t += TICK_S
         self.kin.update()
         self.margin = p.support_margin()

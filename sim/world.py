@@ -142,6 +142,7 @@ class World:
         self.cfg = cfg
         self.body: Body = build_body(cfg.model)
         self.dt = 1.0 / cfg.physics.rate_hz
+        self._sagittal = cfg.mode == "sagittal"
         self.steps = 0
         with _c_stdout_to_devnull():
             self.client = BoundClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
@@ -286,27 +287,32 @@ class World:
         self.q[:] = q
         self.qd[:] = qd
 
-    def step(self) -> None:
-        """One physics step: joint loops (firmware, muscles, ankle springs), then the physics."""
+    def step(self, n: int = 1) -> None:
+        """``n`` physics steps, each the joint loops (firmware, muscles, ankle springs), then the
+        physics. The base's velocity is read after a step where it is used: after every step in
+        the sagittal mode (the plane's spring-damper reads it), after the last two otherwise (the
+        trunk IMU's acceleration and the link states read it)."""
         c = self.client
-        self.read_joints()
         idx = self._torque_idx_array
-        q = self.q[idx]  # the law's order
-        if self.exo.latch_pending:
-            self.exo.latch(q[self._exo_slice])
-        if self.arms.latch_pending:
-            self.arms.latch(q[self._arm_slice])
-        forces = law_torques(self._law_rows, q, self.qd[idx])
-        self.exo.applied, self.arms.applied = forces[self._exo_slice], forces[self._arm_slice]
-        self.tau[idx] = forces
-        c.setJointMotorControlArray(self.robot, self._torque_idx, pybullet.TORQUE_CONTROL, forces=forces.tolist())
-        if self.cfg.mode == "sagittal":
-            self._hold_to_plane()
-        c.stepSimulation()
-        self.steps += 1
+        for k in range(n):
+            self.read_joints()
+            q = self.q[idx]  # the law's order
+            if self.exo.latch_pending:
+                self.exo.latch(q[self._exo_slice])
+            if self.arms.latch_pending:
+                self.arms.latch(q[self._arm_slice])
+            forces = law_torques(self._law_rows, q, self.qd[idx])
+            self.exo.applied, self.arms.applied = forces[self._exo_slice], forces[self._arm_slice]
+            self.tau[idx] = forces
+            c.setJointMotorControlArray(self.robot, self._torque_idx, pybullet.TORQUE_CONTROL, forces=forces.tolist())
+            if self._sagittal:
+                self._hold_to_plane()
+            c.stepSimulation()
+            self.steps += 1
+            if self._sagittal or k >= n - 2:
+                self._base_velocity_before = self._base_velocity
+                self._base_velocity, self._base_angular_velocity = c.getBaseVelocity(self.robot)
         self._changed()
-        self._base_velocity_before = self._base_velocity
-        self._base_velocity, self._base_angular_velocity = c.getBaseVelocity(self.robot)
 
     @property
     def base_acceleration(self) -> np.ndarray:

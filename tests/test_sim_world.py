@@ -74,6 +74,27 @@ def test_state_queries_read_the_current_state_once_per_step():
         assert np.array_equal(world.link_states().com_velocity[0], np.zeros(3))
 
 
+@pytest.mark.parametrize("mode", ["full3d", "sagittal"])
+def test_several_steps_at_once_are_the_single_steps(mode):
+    """``step(n)`` reads the base's velocity only where it is used: the state, the links and the
+    trunk IMU's acceleration after it are those of ``n`` single steps, to the bit."""
+    states = []
+    for batched in (False, True):
+        with _world(mode) as world:
+            world.place(STAND)
+            for _ in range(20):
+                if batched:
+                    world.step(5)
+                else:
+                    for _ in range(5):
+                        world.step()
+            links = world.link_states()
+            states.append([world.q, world.qd, world.tau, world.base_acceleration, links.com, links.com_velocity, links.rot,
+                           links.base_angular_velocity, world.steps])
+    for single, batched in zip(*states):
+        assert np.array_equal(single, batched)
+
+
 def test_trunk_imu_reads_gravity_at_a_known_tilt():
     pose = dataclasses.replace(STAND, trunk_pitch_rad=0.30, hip_x_m=0.02)
     with _world("sagittal") as world:
