@@ -34,7 +34,6 @@ import math
 import numpy as np
 
 from config.sim_schema import GaitConfig, SimConfig
-from sim.actuation import Mode
 from sim.balance import distribute
 from sim.kinematics import Kinematics
 from sim.linalg import clamp, cross3, minimum_jerk
@@ -134,6 +133,7 @@ class ScriptedGait:
         hip_now = float(origin[0])
         hip_x = hip_now + clamp(self.com_goal_x - float(self.kin.com[0]), -s.hip_lead_m, s.hip_lead_m)
         tau = self._feed_forward(reading)
+        positions, torques = np.empty(len(EXO_JOINTS)), np.empty(len(EXO_JOINTS))
         for side in SIDES:
             hip_i, knee_i = self.leg_joints[side]
             if side == self.swing_leg:
@@ -157,7 +157,8 @@ class ScriptedGait:
                 n = w.exo.index(name)
                 target = clamp(target, w.exo.lower[n] + 1e-3, w.exo.upper[n] - 1e-3)
                 self.targets[name] = target
-                w.exo.command(n, Mode.TRACK, target, 0.0, clamp(float(tau[joint]), -100.0, 100.0))
+                positions[n], torques[n] = target, clamp(float(tau[joint]), -100.0, 100.0)
+        w.exo.track(positions, torques)  # every joint: track mode, no velocity feed-forward, the rated limit
 
     def _feed_forward(self, reading: Reading) -> np.ndarray:
         """Joint torques that carry the body: the wrench toward the plan and the patient's posture,
