@@ -39,6 +39,7 @@ class Kinematics:
         for link in range(n):
             self.moves[self.ancestors[link], link + 1] = True
         self._moves_float = self.moves.astype(float)
+        self._moved_by_links: dict[tuple[int, ...], np.ndarray] = {}
         self.masses = world.masses
         self._mass_sum = self.masses.sum()
         self._link_weights = GRAVITY * self.masses[None, :]  # (1, n + 1)
@@ -80,11 +81,19 @@ class Kinematics:
         world forces at points of links produce, all at once. Joint j's share of force f at p is
         ``a_j . ((p - o_j) x f) = a_j . (p x f - o_j x f)``, so the forces on the links j moves
         sum first: ``a_j . (sum p x f - o_j x sum f)``."""
-        moved = self._moves_float[:, np.asarray(links) + 1]  # (n, k): joint j moves contact c's link
+        moved = self._moved(tuple(links))  # (n, k): joint j moves contact c's link
         points, forces = np.asarray(points, dtype=float), np.asarray(forces, dtype=float)
         moment = moved @ cross(points, forces)  # (n, 3)
         force = moved @ forces
         return np.einsum("ij,ij->i", self.joint_axis, moment - cross(self.joint_origin, force))
+
+    def _moved(self, links: tuple[int, ...]) -> np.ndarray:
+        """(n, k) 1.0 where joint j moves link ``links[c]``, 0.0 elsewhere; read-only, made once for
+        each combination of links (a handful: the stance feet and the planted sticks)."""
+        moved = self._moved_by_links.get(links)
+        if moved is None:
+            moved = self._moved_by_links[links] = _read_only(self._moves_float[:, np.asarray(links, dtype=int) + 1])
+        return moved
 
     def gravity_torques(self) -> np.ndarray:
         """Joint torques that hold every link against gravity (``-Q``, Q the generalised gravity
