@@ -59,8 +59,8 @@ class Kinematics:
 
     def memo(self, key: Hashable, compute: Callable[..., Any], *args: Any) -> Any:
         """``compute(*args)``, computed once per :meth:`update`: a value derived from this state that
-        several readers ask for in one tick (the patient's balance, the legs' feed-forward, the
-        sensors). Shared between them: arrays are read-only, sequences tuples."""
+        several readers ask for in one tick (the patient's balance and margin, the arms, the legs'
+        feed-forward). Shared between them: arrays are read-only, sequences tuples."""
         try:
             return self._memo[key]
         except KeyError:
