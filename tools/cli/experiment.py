@@ -47,6 +47,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         sp.add_argument("--seed", type=seed_type, default=0, help="first seed (default 0)")
         sp.add_argument("--seeds", type=positive_int, default=1, metavar="N", help="learning runs per start: seeds S..S+N-1 (default 1)")
         sp.add_argument("--updates", type=positive_int, default=15, help="PI² updates per learning run (default 15)")
+        design(sp)
+
+    def design(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("--unpaired", action="store_true",
+                        help="every roll-out its own patient seed (default: the roll-outs of an update share one, "
+                             "common random numbers; docs/EXPERIMENTS.md)")
+        sp.add_argument("--evaluation-walks", type=positive_int, default=5, metavar="W",
+                        help="noise-free walks per update on fixed seeds, their mean cost the learning curve's (default 5)")
 
     lp = xsub.add_parser("learn", help="online PI² from the paper's starts (Fig. 7)")
     common(lp)
@@ -101,6 +109,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     pp.add_argument("--patient-file", type=Path, action="append", metavar="FILE",
                     help="a patient file (config/patients/*.yaml) instead of drawing; repeatable")
     pp.add_argument("--updates", type=positive_int, default=15, help="PI² updates per patient (default 15)")
+    design(pp)
     pp.add_argument("--walks", type=positive_int, default=10, help="walks (seeds) per gait in each comparison (default 10)")
     pp.set_defaults(func=run_population)
 
@@ -109,6 +118,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     seeds(ap)
     ap.add_argument("--walks", type=positive_int, default=10, help="walks (seeds) per gait in the comparison (default 10)")
     ap.set_defaults(func=run_all)
+
+
+def _design(args: argparse.Namespace):
+    from tools.experiment.learn import RolloutDesign
+
+    return RolloutDesign(paired=not args.unpaired, evaluation_walks=args.evaluation_walks)
 
 
 def _plan(args: argparse.Namespace, **kw):
@@ -151,7 +166,7 @@ def _finish(args: argparse.Namespace, plan) -> int:
 
 def run_learn(args: argparse.Namespace) -> int:
     plan = _plan(args, seeds=list(range(args.seed, args.seed + args.seeds)), starts=sorted(set(args.init or ["A", "B"])),
-                 updates=args.updates)
+                 updates=args.updates, design=_design(args))
     return _finish(args, plan)
 
 
@@ -163,7 +178,7 @@ def run_compare(args: argparse.Namespace) -> int:
 
 
 def run_all(args: argparse.Namespace) -> int:
-    plan = _plan(args, seeds=list(range(args.seed, args.seed + args.seeds)), starts=["A", "B"], updates=args.updates,
+    plan = _plan(args, seeds=list(range(args.seed, args.seed + args.seeds)), starts=["A", "B"], updates=args.updates, design=_design(args),
                  compare=True, compare_walks=args.walks)
     return _finish(args, plan)
 
@@ -249,7 +264,7 @@ def run_population(args: argparse.Namespace) -> int:
     else:
         patients = draw_population(args.patients, args.seed)
     plan = population.PopulationPlan(cfg=base.cfg, out=args.out, patients=patients, seed=args.seed, updates=args.updates,
-                                     compare_walks=args.walks, mode=args.mode, workers=args.workers, executor=args.executor,
+                                     design=_design(args), compare_walks=args.walks, mode=args.mode, workers=args.workers, executor=args.executor,
                                      address=args.address)
     bar = Progress(len(patients) * plan.walks_per_patient(), enabled=not args.quiet)
     with StopSignals() as signals, _stdout_for_the_report():

@@ -56,6 +56,7 @@ def summary(res: Results) -> dict[str, Any]:
                                                             ((r.start, r.theta0) for r in res.learning)},
         "updates": plan.updates, "cycles_per_rollout": n,
         "rollouts_per_update": plan.cfg.controller.learning.rollouts_per_update,
+        "paired_rollouts": plan.design.paired, "evaluation_walks": plan.design.evaluation_walks,
         "walks_run": res.walks_run, "walks_reused": res.walks_reused, "wall_time_s": round(res.wall_time_s, 1),
         "workers": plan.workers,
         "executor": plan.executor,
@@ -307,7 +308,8 @@ def report(s: dict[str, Any]) -> str:
     """Markdown: our numbers beside the paper's."""
     lines = ["# The paper's experiments, reproduced", "",
              f"Mode {s['mode']}, seeds {s['seeds']}, {s['cycles_per_rollout']} gait cycles per roll-out, "
-             f"an update every {s['rollouts_per_update']} roll-outs, up to {s['updates']} updates; "
+             f"an update every {s['rollouts_per_update']} roll-outs ({'paired: one patient seed' if s['paired_rollouts'] else 'unpaired: a seed each'}), "
+             f"up to {s['updates']} updates, each evaluated noise-free over {s['evaluation_walks']} fixed seeds; "
              f"{s['walks_run']} walks run and {s['walks_reused']} reused in {s['wall_time_s'] / 60:.1f} min on {s['workers']} workers.", ""]
     if "learning" in s:
         checks = s["learning"]["checks"]
