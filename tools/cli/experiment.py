@@ -97,6 +97,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                          "tips (planted), or by the patient's intention (the physics alone)")
     ip.set_defaults(func=run_intention)
 
+    mp = xsub.add_parser("costmap", help="the noise-free cost of a grid of theta, the learning runs drawn on it",
+                         description="Walks every theta = (alpha, Xhat_CoM) of an N x N grid on the same W patient seeds and "
+                                     "maps their mean cost (equation (11)): its minimum, the theta within 3 % of it, and the "
+                                     "learning runs of --learning drawn on it (docs/EXPERIMENTS.md).")
+    common(mp)
+    mp.add_argument("--seed", type=seed_type, default=0, help="seed of the map's walks (default 0)")
+    mp.add_argument("--grid", type=positive_int, default=7, metavar="N", help="grid points per parameter (default 7)")
+    mp.add_argument("--walks", type=positive_int, default=5, metavar="W", help="paired walks per theta (default 5)")
+    mp.add_argument("--alpha", type=float, nargs=2, default=costmap_spans()[0], metavar=("LO", "HI"),
+                    help="alpha's span, m (default %(default)s)")
+    mp.add_argument("--xhat", type=float, nargs=2, default=costmap_spans()[1], metavar=("LO", "HI"),
+                    help="Xhat_CoM's span (default %(default)s)")
+    mp.add_argument("--learning", type=Path, metavar="SUMMARY",
+                    help="summary.json of `experiment learn` or `all` whose runs to draw (default OUT/summary.json when it has them)")
+    mp.set_defaults(func=run_costmap)
+
     pp = xsub.add_parser("population", help="per virtual patient: learning from A, then the learned gait against fixed step lengths",
                          description="Draws N virtual patients for a seed (docs/POPULATION.md; or takes patient files), and for each "
                                      "learns from the paper's start A, then compares the learned gait with the fixed step lengths "
@@ -246,6 +262,44 @@ def run_intention(args: argparse.Namespace) -> int:
     jobs = intention_jobs(seed=args.seed, walks=args.walks, lengths_m=grid, cycles=plan.cycles, mode=args.mode)
     s = write_intention(_walk_batch(args, plan, jobs), args.out, args.bins, args.bin_by)
     return _print(args, s, report_lines(s), "intention.csv, intention.json, intention.md, intention.png")
+
+
+def costmap_spans() -> tuple[list[float], list[float]]:
+    from tools.experiment.costmap import ALPHA_SPAN, XHAT_SPAN
+
+    return list(ALPHA_SPAN), list(XHAT_SPAN)
+
+
+def run_costmap(args: argparse.Namespace) -> int:
+    from tools.experiment import costmap
+    from tools.experiment.report import write_costmap
+
+    plan = _plan(args)
+    grid = costmap.Grid.spanning(args.grid, tuple(args.alpha), tuple(args.xhat))
+    costmap.check_span(grid, plan.cfg)
+    learning = _learning_summary(args.learning or args.out / "summary.json", given=args.learning is not None)
+    jobs = costmap.costmap_jobs(grid, seed=args.seed, walks=args.walks, cycles=plan.cycles, mode=args.mode)
+    s = write_costmap(_walk_batch(args, plan, jobs), args.out, grid, args.walks, plan.cfg, learning)
+    return _print(args, s, costmap.report_lines(s), "costmap.csv, costmap.json, costmap.md, costmap.png")
+
+
+def _learning_summary(path: Path, given: bool) -> dict | None:
+    """The ``learning`` part of an experiment's summary.json (None when there is none and it was not asked for)."""
+    import json
+
+    from tools.experiment.runner import ExperimentError
+
+    if not path.is_file():
+        if given:
+            raise ExperimentError(f"--learning {path}: no such file")
+        return None
+    try:
+        learning = json.loads(path.read_text()).get("learning")
+    except (OSError, ValueError, AttributeError) as exc:
+        raise ExperimentError(f"{path}: not an experiment's summary.json ({exc})") from None
+    if learning is None and given:
+        raise ExperimentError(f"{path}: has no learning runs (from `experiment learn` or `all`)")
+    return learning
 
 
 def run_population(args: argparse.Namespace) -> int:

@@ -119,6 +119,23 @@ def write_falls(results: list[dict[str, Any]], out: Path) -> dict[str, Any]:
     return s
 
 
+def write_costmap(results: list[dict[str, Any]], out: Path, grid, walks: int, cfg, learning: dict[str, Any] | None) -> dict[str, Any]:
+    """The cost map (:mod:`tools.experiment.costmap`) under ``out``: costmap.csv, costmap.json,
+    costmap.png and costmap.md; returns the summary."""
+    from tools.experiment import costmap
+
+    out.mkdir(parents=True, exist_ok=True)
+    s = costmap.analyse(results, grid, walks, cfg, learning)
+    rows = [{"alpha": a, "xhat": x, "cost": c, "walked_full": f}
+            for x, cost_row, full_row in zip(s["grid"]["xhat"], s["cost"], s["walked_full"])
+            for a, c, f in zip(s["grid"]["alpha"], cost_row, full_row)]
+    _write(out / "costmap.csv", _csv(rows))
+    costmap.figure(s, out / "costmap.png", _canvas, _save)
+    _write(out / "costmap.json", json.dumps(s, indent=2) + "\n")
+    _write(out / "costmap.md", "# The noise-free cost of theta\n\n" + "\n".join(costmap.report_lines(s)) + "\n")
+    return s
+
+
 def write_intention(results: list[dict[str, Any]], out: Path, bins: int, by: str = "planted") -> dict[str, Any]:
     """The fixed lengths crossed with X_CoM/X_SP (:mod:`tools.experiment.intention`) under ``out``:
     intention.csv, intention.json, intention.png and intention.md; returns the summary."""
