@@ -37,7 +37,9 @@ def balance_gains(cfg: ControllerConfig) -> BalanceGains:
 
 
 def step_bounds(cfg: ControllerConfig) -> StepBounds:
-    return StepBounds(init_m=cfg.step.init_m, min_m=cfg.step.min_m, max_m=cfg.step.max_m)
+    """The step lengths in metres: ``controller.step``'s fractions of this patient's leg length."""
+    leg, s = cfg.legs.length_m, cfg.step
+    return StepBounds(init_m=s.init_fraction * leg, min_m=s.min_fraction * leg, max_m=s.max_fraction * leg)
 
 
 def pi2_params(cfg: ControllerConfig) -> Pi2Params:

@@ -202,10 +202,12 @@ def run_all(args: argparse.Namespace) -> int:
 def _check_span(plan, lo: float, hi: float) -> None:
     from tools.experiment.runner import ExperimentError
 
-    bounds = plan.cfg.controller.step
+    from controller.factory import step_bounds
+
+    bounds = step_bounds(plan.cfg.controller)
     if not bounds.min_m <= lo <= hi <= bounds.max_m:
         raise ExperimentError(f"--min {lo} and --max {hi} must lie in the safe range "
-                              f"[{bounds.min_m}, {bounds.max_m}] m (controller.step), min <= max")
+                              f"[{bounds.min_m:.3f}, {bounds.max_m:.3f}] m (controller.step), min <= max")
 
 
 def _walk_batch(args: argparse.Namespace, plan, jobs) -> list:
