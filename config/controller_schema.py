@@ -21,6 +21,11 @@ class LegConfig:
     knee_min_rad: float = field_spec(doc="Knee extension limit (0 = straight).", unit="rad", min=-0.5, max=math.pi)
     knee_max_rad: float = field_spec(doc="Knee flexion limit.", unit="rad", min=0.0, max=math.pi)
 
+    @property
+    def length_m(self) -> float:
+        """The leg length, hip joint to floor standing straight: what the step lengths are fractions of."""
+        return self.thigh_m + self.shank_m + self.ankle_height_m
+
     def validate(self) -> None:
         if self.hip_min_rad >= self.hip_max_rad:
             fail("hip_min_rad", "must be below hip_max_rad")
@@ -44,17 +49,18 @@ class SwingConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class StepConfig:
-    """Step length: the uncompensated goal and the hard safety clamp."""
+    """Step length: the uncompensated goal and the hard safety clamp, as fractions of the leg
+    length (``controller.legs``: hip to floor), so that one configuration serves every patient."""
 
-    init_m: float = field_spec(doc="g_init: step length without compensation.", unit="m", min=0.02, max=0.6)
-    min_m: float = field_spec(doc="Shortest step ever commanded.", unit="m", min=0.02, max=0.6)
-    max_m: float = field_spec(doc="Longest step ever commanded.", unit="m", min=0.02, max=0.6)
+    init_fraction: float = field_spec(doc="g_init: step length without compensation.", unit="leg lengths", min=0.02, max=0.6)
+    min_fraction: float = field_spec(doc="Shortest step ever commanded.", unit="leg lengths", min=0.02, max=0.6)
+    max_fraction: float = field_spec(doc="Longest step ever commanded.", unit="leg lengths", min=0.02, max=0.6)
 
     def validate(self) -> None:
-        if self.min_m > self.max_m:
-            fail("min_m", f"must not exceed max_m {self.max_m}")
-        if not self.min_m <= self.init_m <= self.max_m:
-            fail("init_m", f"must lie between min_m {self.min_m} and max_m {self.max_m}")
+        if self.min_fraction > self.max_fraction:
+            fail("min_fraction", f"must not exceed max_fraction {self.max_fraction}")
+        if not self.min_fraction <= self.init_fraction <= self.max_fraction:
+            fail("init_fraction", f"must lie between min_fraction {self.min_fraction} and max_fraction {self.max_fraction}")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -55,7 +55,7 @@ class VirtualPatient:
         min=0.2, max=2.5)
     comfortable_stick_force_n: float = field_spec(
         doc="Mean force on each stick the patient finds comfortable over a step (the population report compares against it).",
-        unit="N", min=10.0, max=400.0)
+        unit="N", min=10.0, max=600.0)
     stick_length_m: float | None = field_spec(
         doc="The sticks' length from grip to tip; absent: fitted to the height, as the reference patient's.",
         unit="m", min=0.5, max=1.3, default=None)

@@ -36,8 +36,15 @@ def balance_gains(cfg: ControllerConfig) -> BalanceGains:
                         ankle_rest_rad=cfg.body.ankle_rest_rad)
 
 
+#: step lengths are commanded to a tenth of a millimetre
+STEP_RESOLUTION_DIGITS = 4
+
+
 def step_bounds(cfg: ControllerConfig) -> StepBounds:
-    return StepBounds(init_m=cfg.step.init_m, min_m=cfg.step.min_m, max_m=cfg.step.max_m)
+    """The step lengths in metres: ``controller.step``'s fractions of this patient's leg length,
+    to STEP_RESOLUTION_DIGITS decimals (the reference patient's fractions give its round metres)."""
+    leg, s = cfg.legs.length_m, cfg.step
+    return StepBounds(*(round(f * leg, STEP_RESOLUTION_DIGITS) for f in (s.init_fraction, s.min_fraction, s.max_fraction)))
 
 
 def pi2_params(cfg: ControllerConfig) -> Pi2Params:

@@ -117,7 +117,7 @@ def _tag(name: str, old: str, new: str, tag: str) -> Bad:
 _CTT = "  command_timeout_ticks: 3"
 _HBT = "  heartbeat_timeout_ms: 300"
 _TORQUE = "    max_torque_nm: 100.0"
-_STEP = "    min_m: 0.06\n    max_m: 0.25"
+_STEP = "    min_fraction: 0.0647      # 0.060 m\n    max_fraction: 0.2697      # 0.250 m"
 _HIP_JOINT = "hip:              {lower_rad: -0.50, upper_rad: 2.00, torque_limit_nm: 100.0,"
 
 BAD: list[Bad] = [
@@ -126,10 +126,10 @@ BAD: list[Bad] = [
         "invalid YAML: found character '\\t'", _line_of(_CTT)),
     Bad("syntax-mapping-in-scalar", "syntax", _text(_TORQUE, _TORQUE + ": 5"), None,
         "invalid YAML: mapping values are not allowed here", _line_of(_TORQUE)),
-    Bad("syntax-bad-indent", "syntax", _text("    max_m: 0.25", "   max_m: 0.25"), None,
-        "invalid YAML", _line_of("    max_m: 0.25")),
-    Bad("syntax-list-item-in-mapping", "syntax", _text("    min_m: 0.06", "    - min_m: 0.06"), None,
-        "invalid YAML", _line_of("    min_m: 0.06")),
+    Bad("syntax-bad-indent", "syntax", _text("    max_fraction: 0.2697", "   max_fraction: 0.2697"), None,
+        "invalid YAML", _line_of("    max_fraction: 0.2697")),
+    Bad("syntax-list-item-in-mapping", "syntax", _text("    min_fraction: 0.0647", "    - min_fraction: 0.0647"), None,
+        "invalid YAML", _line_of("    min_fraction: 0.0647")),
     Bad("syntax-unclosed-flow-sequence", "syntax", _text("[0.0, 0.20, 0.504]", "[0.0, 0.20, 0.504"), None,
         "invalid YAML: expected ',' or ']'", _line_of("[0.0, 0.20, 0.504]")),
     Bad("syntax-unterminated-quote", "syntax", _text("channel: aider", 'channel: "aider'), None,
@@ -141,7 +141,7 @@ BAD: list[Bad] = [
         "missing required key"),
     Bad("missing-envelope-torque", "missing-key", _text(_TORQUE + "\n", ""), "controller.envelope.max_torque_nm",
         "missing required key"),
-    Bad("missing-step-max", "missing-key", _text("    max_m: 0.25\n", ""), "controller.step.max_m",
+    Bad("missing-step-max", "missing-key", _text("    max_fraction: 0.2697      # 0.250 m\n", ""), "controller.step.max_fraction",
         "missing required key"),
     Bad("missing-lost-frame-budget", "missing-key", _without("protocol.max_delta_counter"),
         "protocol.max_delta_counter", "missing required key"),
@@ -173,8 +173,8 @@ BAD: list[Bad] = [
         "controller.legs.hip_min_rad", "must be below hip_max_rad"),
     Bad("minmax-knee-limits-equal", "min-above-max", _text("    knee_min_rad: 0.00", "    knee_min_rad: 2.00"),
         "controller.legs.knee_min_rad", "must be below knee_max_rad"),
-    Bad("minmax-step-length", "min-above-max", _text(_STEP, "    min_m: 0.30\n    max_m: 0.25"),
-        "controller.step.min_m", "must not exceed max_m 0.25"),
+    Bad("minmax-step-length", "min-above-max", _text(_STEP, "    min_fraction: 0.30\n    max_fraction: 0.2697"),
+        "controller.step.min_fraction", "must not exceed max_fraction 0.2697"),
     Bad("minmax-learning-alpha", "min-above-max", _text("    alpha_max: 0.0", "    alpha_max: -30.0"),
         "controller.learning.alpha_min", "must be below alpha_max"),
     Bad("minmax-sim-joint", "min-above-max", _text(_HIP_JOINT, "hip:              {lower_rad: 2.50, upper_rad: 2.00, torque_limit_nm: 100.0,"),
@@ -205,8 +205,8 @@ BAD: list[Bad] = [
     # --- non-finite numbers -------------------------------------------------------------------
     Bad("nonfinite-inf-torque", "non-finite", _text(_TORQUE, "    max_torque_nm: .inf"),
         "controller.envelope.max_torque_nm", "expected a finite number, got inf"),
-    Bad("nonfinite-nan-step", "non-finite", _text("    max_m: 0.25", "    max_m: .nan"),
-        "controller.step.max_m", "expected a finite number, got nan"),
+    Bad("nonfinite-nan-step", "non-finite", _text("    max_fraction: 0.2697", "    max_fraction: .nan"),
+        "controller.step.max_fraction", "expected a finite number, got nan"),
     Bad("nonfinite-minus-inf-limit", "non-finite", _text("    hip_min_rad: -0.50", "    hip_min_rad: -.inf"),
         "controller.legs.hip_min_rad", "expected a finite number, got -inf"),
     Bad("nonfinite-overflow", "non-finite", _text("    max_velocity_rad_s: 4.0", "    max_velocity_rad_s: 1e400"),

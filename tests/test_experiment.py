@@ -20,17 +20,20 @@ from tools.cli import main
 from tools.experiment import experiment, runner
 from tools.experiment.compare import GaitStats, compare_jobs
 from tools.experiment.experiment import Plan, comparison_checks, learning_checks
-from tools.experiment.learn import STARTS, LearningRun, Update, rollout_cost, walk_seed
+from tools.experiment.learn import (STARTS, LearningRun, RolloutDesign, Update, evaluation_seeds, learning_run,
+                                   rollout_cost, walk_seed)
 from tools.experiment.report import summary
 from tools.experiment.runner import ExperimentError, WalkJob, WalkPool
 from tools.experiment.schedule import Interrupted
 
 TINY = {"controller.learning.steps_per_rollout": 1, "controller.learning.rollouts_per_update": 2}
 CFG = with_overrides(load_config(default_config_path()), TINY)
+DESIGN = RolloutDesign(evaluation_walks=2)  # paired roll-outs; two evaluation walks per update
 
 
 def _learn(out: Path, workers: int) -> experiment.Results:
-    return experiment.run(Plan(cfg=CFG, out=out, seeds=[0], starts=["A", "B"], updates=1, workers=workers), progress=False)
+    return experiment.run(Plan(cfg=CFG, out=out, seeds=[0], starts=["A", "B"], updates=1, design=DESIGN, workers=workers),
+                          progress=False)
 
 
 def _strip(summary: dict) -> dict:
@@ -47,7 +50,7 @@ def parallel(tmp_path_factory) -> tuple[Path, dict]:
     sets = [a for k, v in TINY.items() for a in ("--set", f"{k}={v}")]
     done = subprocess.run(
         [sys.executable, "-m", "tools.cli", "experiment", "learn", "--out", str(out), "--workers", "2", "--updates", "1",
-         *sets, "--json", "--quiet"],
+         "--evaluation-walks", "2", *sets, "--json", "--quiet"],
         check=False, capture_output=True, text=True, timeout=600, cwd=Path(__file__).resolve().parents[1],
     )
     assert done.returncode == 0, done.stderr
@@ -56,7 +59,8 @@ def parallel(tmp_path_factory) -> tuple[Path, dict]:
 
 def test_learning_runs_the_planned_walks_and_updates(parallel):
     out, s = parallel
-    assert s["walks_run"] == 2 * (1 * (2 + 1) + 1) and s["workers"] == 2
+    assert s["walks_run"] == 2 * (1 * (2 + 2) + 2) and s["workers"] == 2
+    assert s["paired_rollouts"] and s["evaluation_walks"] == 2
     for run in s["learning"]["runs"]:
         assert [u["index"] for u in run["updates"]] == [0, 1]
         assert run["updates"][0]["evaluation_theta"] == list(STARTS[run["start"]])
@@ -131,6 +135,71 @@ def test_rollout_cost_is_equation_11():
     assert rollout_cost(walked, 2, 5000.0, 1.0) == 110.0
     assert rollout_cost(fell, 2, 5000.0, 1.0) == 2500.0 + 50.0
     assert walk_seed(0, 1, 2) == walk_seed(0, 1, 2) != walk_seed(0, 1, 3)
+
+
+def _fake_walk(job: WalkJob) -> dict:
+    """A walk's result made up from its job: fewer cycles and a higher cost the lower alpha."""
+    cycles = 1 if job.theta[0] < -1.0 else 2
+    return {"cycle_costs": [100.0 - 10 * job.theta[0]] * cycles, "fell": cycles < 2, "cycles_completed": cycles,
+            "end": "walked" if cycles == 2 else "forward fall", "swings": []}
+
+
+def _drive(design: RolloutDesign, updates: int = 2, walk=_fake_walk) -> tuple[list[list[WalkJob]], LearningRun]:
+    """A learning run of 2-cycle roll-outs driven with ``walk``: every batch it asked for, and the run."""
+    cfg = with_overrides(CFG, {"controller.learning.steps_per_rollout": 2, "controller.learning.rollouts_per_update": 3})
+    gen, batches = learning_run(cfg, "A", 0, updates=updates, design=design), []
+    jobs = next(gen)
+    try:
+        while True:
+            batches.append(jobs)
+            jobs = gen.send([walk(j) for j in jobs])
+    except StopIteration as stop:
+        return batches, stop.value
+
+
+def test_paired_rollouts_share_an_update_seed_and_draw_a_new_one_each_update():
+    batches, _ = _drive(RolloutDesign(paired=True, evaluation_walks=2))
+    rollouts = [b[2:] for b in batches[:-1]]  # each batch: 2 evaluation walks, then the update's 3 roll-outs
+    assert [len(r) for r in rollouts] == [3, 3] and len(batches[-1]) == 2
+    for r in rollouts:
+        assert len({j.seed for j in r}) == 1 and len({j.theta for j in r}) == 3  # one patient, three thetas
+    assert rollouts[0][0].seed != rollouts[1][0].seed
+    unpaired = [b[2:] for b in _drive(RolloutDesign(paired=False, evaluation_walks=2))[0][:-1]]
+    assert all(len({j.seed for j in r}) == 3 for r in unpaired)
+    assert {j.seed for r in unpaired for j in r}.isdisjoint({rollouts[0][0].seed, rollouts[1][0].seed})
+
+
+def test_the_evaluation_walks_a_fixed_seed_set_and_averages_its_costs():
+    batches, run = _drive(RolloutDesign(evaluation_walks=4))
+    evaluations = [b[:4] for b in batches]
+    seeds = [j.seed for j in evaluations[0]]
+    assert len(set(seeds)) == 4 and all([j.seed for j in e] == seeds for e in evaluations)  # the same set every update
+    assert all(len({j.theta for j in e}) == 1 for e in evaluations)
+    assert not set(seeds) & {j.seed for b in batches for j in b[4:]}  # no roll-out walks an evaluation seed
+    for u in run.updates:
+        assert u.evaluation_costs == [u.evaluation_cost] * 4  # the fake walk's cost depends on theta only
+    assert run.updates[0].evaluation_cost == 2 * (100.0 + 10.0)  # theta A: alpha -1.0, two cycles
+
+
+def test_the_evaluation_reports_its_worst_walk():
+    design = RolloutDesign(evaluation_walks=3)
+    unlucky = evaluation_seeds(0, sorted(STARTS).index("A"), design)[1]
+
+    def walk(job: WalkJob) -> dict:
+        fell = {"cycle_costs": [110.0], "cycles_completed": 1, "end": "backward fall", "fell": True}
+        return {**_fake_walk(job), **fell} if job.seed == unlucky else _fake_walk(job)
+
+    _, run = _drive(design, updates=1, walk=walk)
+    first = run.updates[0]
+    assert (first.evaluation_cycles, first.evaluation_end) == (1, "backward fall")
+    assert first.evaluation_costs[1] > first.evaluation_costs[0] == first.evaluation_costs[2]  # eq. (11): the fall's cost
+    assert first.evaluation_cost == round(sum(first.evaluation_costs) / 3, 3)
+
+
+def test_a_design_needs_an_evaluation_walk():
+    with pytest.raises(ExperimentError, match="at least 1"):
+        RolloutDesign(evaluation_walks=0)
+    assert RolloutDesign(evaluation_walks=5).walks_per_run(updates=15, rollouts=5) == 15 * 10 + 5
 
 
 BOUNDS = StepBounds(init_m=0.15, min_m=0.06, max_m=0.25)

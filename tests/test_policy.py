@@ -5,6 +5,7 @@ roll-out that ends after N cycles, at a fall, or is dropped."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -230,7 +231,7 @@ def test_step_policy_fixed():
 
 def test_step_policy_fixed_outside_the_safe_range_is_a_project_error():
     with pytest.raises(AiderError, match=r"controller\.step"):
-        factory.step_policy(BASE.controller, fixed_m=BASE.controller.step.max_m * 2)
+        factory.step_policy(BASE.controller, fixed_m=factory.step_bounds(BASE.controller).max_m * 2)
 
 
 def test_step_policy_fixed_and_learning_together_is_an_error(tmp_path):
@@ -333,3 +334,13 @@ def test_a_step_bounds_object_is_what_the_policy_checks_against():
     assert StepPolicy(narrow, fixed_m=0.1).fixed_m == 0.1
     with pytest.raises(PolicyError):
         StepPolicy(narrow, fixed_m=0.12)
+
+
+def test_the_step_bounds_scale_with_the_leg_length():
+    legs = BASE.controller.legs
+    tall = dataclasses.replace(BASE.controller, legs=dataclasses.replace(
+        legs, thigh_m=2 * legs.thigh_m, shank_m=2 * legs.shank_m, ankle_height_m=2 * legs.ankle_height_m))
+    ref, twice = factory.step_bounds(BASE.controller), factory.step_bounds(tall)
+    for name in ("init_m", "min_m", "max_m"):
+        assert getattr(twice, name) == pytest.approx(2 * getattr(ref, name), abs=1e-4)
+    assert (ref.init_m, ref.min_m, ref.max_m) == (0.15, 0.06, 0.25)  # the reference patient's, to 0.1 mm

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from config import ConfigError, default_config_path, load_config
-from config.patient_schema import BMI_RANGE
+from config.patient_schema import BMI_RANGE, VirtualPatient
 from sim.model import build_body
 from tools import population
 from tools.population import draw_population, fitted_body, load_patient, patient_config, patient_yaml, shipped_patients
@@ -135,6 +135,21 @@ def test_a_large_population_follows_its_documented_distributions():
     for regime, share in population.REGIMES.items():
         assert regimes.count(regime) / len(people) == pytest.approx(share, abs=0.06), regime
     assert all(p.placement.spread_m == 0 for p in people if p.placement.regime == "steady")
+
+
+def test_the_draws_extremes_are_valid_patients():
+    """The corners of the draw's ranges (the tallest heaviest patient leaning the most on a stick,
+    the shortest lightest leaning the least) pass the patient schema's bounds."""
+    from config.loader import build
+
+    for height, bmi, comfort in ((population.HEIGHT_RANGE_M[1], population.BMI_DRAW_RANGE[1], population.COMFORT_RANGE[1]),
+                                 (population.HEIGHT_RANGE_M[0], population.BMI_DRAW_RANGE[0], population.COMFORT_RANGE[0])):
+        mass = round(bmi * height**2, 1)
+        data = {"name": "corner", "mass_kg": mass, "height_m": height, "arm_strength": 1.0,
+                "comfortable_stick_force_n": round(comfort * mass * population.GRAVITY, 1),
+                "placement": {"regime": "noisy", "spread_m": 0.06, "stick_noise_m": 0.02},
+                "fit": {"length_error_fraction": 0.0, "mass_error_kg": 0.0}}
+        build(VirtualPatient, data)
 
 
 @settings(max_examples=40, deadline=None)

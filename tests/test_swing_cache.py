@@ -59,4 +59,4 @@ def test_factory_builds_the_core_from_the_configuration():
     assert learner.theta.tolist() == [CFG.learning.initial_alpha, CFG.learning.initial_xhat]
     assert factory.pi2_params(CFG).noise_std == (CFG.learning.noise_alpha, CFG.learning.noise_xhat)
     assert factory.leg(CFG).reach_m == pytest.approx(CFG.legs.thigh_m + CFG.legs.shank_m)
-    assert factory.step_bounds(CFG).init_m == CFG.step.init_m
+    assert factory.step_bounds(CFG).init_m == 0.15

@@ -70,18 +70,19 @@ def test_two_gait_cycles_walk_without_a_fall_and_estimate_the_com_ratio_within_t
     assert outcome.policy == "compensated" and outcome.mode == "sagittal" and outcome.final_state in WALKING
     assert len(outcome.ratio_errors) > 100 and outcome.ratio_mae <= GOAL_RATIO_MAE
     c = BASE.controller
+    bounds = factory.step_bounds(c)
     assert outcome.theta == (c.compensation.alpha, c.compensation.xhat_com)
     steps = outcome.steps
     assert all(a.leg != b.leg for a, b in itertools.pairwise(steps))  # the legs take turns
     for prev, s in zip([None, *steps], steps):
-        assert s.landed and c.step.min_m <= s.length_m <= c.step.max_m
+        assert s.landed and bounds.min_m <= s.length_m <= bounds.max_m
         assert s.start_tick < s.swing_tick < s.end_tick  # from the last landing: stick moves, lean, then the swing
         if prev is not None:
             assert s.start_tick == prev.end_tick  # a step runs from the previous landing to its own
         assert s.theta == outcome.theta and math.isfinite(s.x_ratio)
         # the step is equation (8) of X_CoM/X_SP over the support of the swing (the stance sole and
         # the tips): the CoM sits farther back in it than between the rear foot and the tips
-        assert s.requested_m == pytest.approx(c.step.init_m + c.compensation.alpha * (c.compensation.xhat_com - s.x_ratio))
+        assert s.requested_m == pytest.approx(bounds.init_m + c.compensation.alpha * (c.compensation.xhat_com - s.x_ratio))
         assert 0.0 < s.x_ratio < s.x_ratio_planted
         assert s.samples > 0 and s.mean_stick_force_n > 0.0
     assert outcome.mean_stick_force_n == pytest.approx(np.mean([s.mean_stick_force_n for s in steps]))

@@ -47,12 +47,30 @@ def run_check(args: argparse.Namespace) -> int:
     sections = {name: getattr(cfg, name) is not None for name in ("protocol", "controller", "sim", "nodes")}
     result = {"file": str(args.file), "valid": True, "schema_version": SCHEMA_VERSION, "hash": config_hash(cfg),
               "bus": f"{cfg.bus.interface}:{cfg.bus.channel}", "sections": sections}
+    if cfg.controller is not None:
+        result["step_m"] = _step_metres(cfg.controller)
     if args.json:
         print_json(result)
     else:
         present = ", ".join(name for name, there in sections.items() if there) or "none"
         print(f"{args.file}: valid (schema {SCHEMA_VERSION}, bus {result['bus']}; sections: {present}; hash {result['hash'][:12]})")
+        if "step_m" in result:
+            print(_step_line(result["step_m"]))
     return 0
+
+
+def _step_metres(controller) -> dict[str, float]:
+    """controller.step's fractions in metres for this configuration's leg length."""
+    from controller.factory import step_bounds
+
+    b = step_bounds(controller)
+    return {"leg_length": round(controller.legs.length_m, 4), "init": round(b.init_m, 4), "min": round(b.min_m, 4),
+            "max": round(b.max_m, 4)}
+
+
+def _step_line(m: dict[str, float]) -> str:
+    return (f"controller.step for a leg of {m['leg_length']:.3f} m: g_init {m['init']:.3f} m, "
+            f"steps {m['min']:.3f}-{m['max']:.3f} m")
 
 
 #: the patient's options, for errors in their terms (the keys as tools.population names them)
@@ -84,12 +102,14 @@ def run_body(args: argparse.Namespace) -> int:
         _, section, name = key.split(".")
         value = controller[section][name]
         nested["controller"][section][name] = [round(v, 4) for v in value] if isinstance(value, list) else round(value, 4)
+    step = _step_metres(with_overrides(base, overrides, source="aider-exo config body").controller)
     if args.json:
-        print_json({"mass_kg": args.mass, "height_m": args.height, "stick_length_m": round(stick_m, 4), **nested})
+        print_json({"mass_kg": args.mass, "height_m": args.height, "stick_length_m": round(stick_m, 4), "step_m": step, **nested})
         return 0
     print(f"# controller.legs and controller.body for a patient of {args.mass:g} kg and {args.height:g} m with sticks of\n"
           f"# {stick_m:.3f} m, estimated by `aider-exo config body` (Winter's tables). Replace every value you have\n"
-          "# measured, above all the exoskeleton's thigh and shank as adjusted; then `aider-exo config check FILE`.")
+          "# measured, above all the exoskeleton's thigh and shank as adjusted; then `aider-exo config check FILE`.\n"
+          f"# {_step_line(step)} (its fractions of the leg length).")
     class Dumper(yaml.SafeDumper):  # blocks for the sections, [x, y, z] for the vectors
         pass
 

@@ -47,6 +47,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         sp.add_argument("--seed", type=seed_type, default=0, help="first seed (default 0)")
         sp.add_argument("--seeds", type=positive_int, default=1, metavar="N", help="learning runs per start: seeds S..S+N-1 (default 1)")
         sp.add_argument("--updates", type=positive_int, default=15, help="PI² updates per learning run (default 15)")
+        design(sp)
+
+    def design(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("--unpaired", action="store_true",
+                        help="every roll-out its own patient seed (default: the roll-outs of an update share one, "
+                             "common random numbers; docs/EXPERIMENTS.md)")
+        sp.add_argument("--evaluation-walks", type=positive_int, default=5, metavar="W",
+                        help="noise-free walks per update on fixed seeds, their mean cost the learning curve's (default 5)")
 
     lp = xsub.add_parser("learn", help="online PI² from the paper's starts (Fig. 7)")
     common(lp)
@@ -89,6 +97,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                          "tips (planted), or by the patient's intention (the physics alone)")
     ip.set_defaults(func=run_intention)
 
+    mp = xsub.add_parser("costmap", help="the noise-free cost of a grid of theta, the learning runs drawn on it",
+                         description="Walks every theta = (alpha, Xhat_CoM) of an N x N grid on the same W patient seeds and "
+                                     "maps their mean cost (equation (11)): its minimum, the theta within 3 % of it, and the "
+                                     "learning runs of --learning drawn on it (docs/EXPERIMENTS.md).")
+    common(mp)
+    mp.add_argument("--seed", type=seed_type, default=0, help="seed of the map's walks (default 0)")
+    mp.add_argument("--grid", type=positive_int, default=7, metavar="N", help="grid points per parameter (default 7)")
+    mp.add_argument("--walks", type=positive_int, default=5, metavar="W", help="paired walks per theta (default 5)")
+    mp.add_argument("--alpha", type=float, nargs=2, default=costmap_spans()[0], metavar=("LO", "HI"),
+                    help="alpha's span, m (default %(default)s)")
+    mp.add_argument("--xhat", type=float, nargs=2, default=costmap_spans()[1], metavar=("LO", "HI"),
+                    help="Xhat_CoM's span (default %(default)s)")
+    mp.add_argument("--learning", type=Path, metavar="SUMMARY",
+                    help="summary.json of `experiment learn` or `all` whose runs to draw (default OUT/summary.json when it has them)")
+    mp.set_defaults(func=run_costmap)
+
     pp = xsub.add_parser("population", help="per virtual patient: learning from A, then the learned gait against fixed step lengths",
                          description="Draws N virtual patients for a seed (docs/POPULATION.md; or takes patient files), and for each "
                                      "learns from the paper's start A, then compares the learned gait with the fixed step lengths "
@@ -101,6 +125,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     pp.add_argument("--patient-file", type=Path, action="append", metavar="FILE",
                     help="a patient file (config/patients/*.yaml) instead of drawing; repeatable")
     pp.add_argument("--updates", type=positive_int, default=15, help="PI² updates per patient (default 15)")
+    design(pp)
     pp.add_argument("--walks", type=positive_int, default=10, help="walks (seeds) per gait in each comparison (default 10)")
     pp.set_defaults(func=run_population)
 
@@ -109,6 +134,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     seeds(ap)
     ap.add_argument("--walks", type=positive_int, default=10, help="walks (seeds) per gait in the comparison (default 10)")
     ap.set_defaults(func=run_all)
+
+
+def _design(args: argparse.Namespace):
+    from tools.experiment.learn import RolloutDesign
+
+    return RolloutDesign(paired=not args.unpaired, evaluation_walks=args.evaluation_walks)
 
 
 def _plan(args: argparse.Namespace, **kw):
@@ -151,7 +182,7 @@ def _finish(args: argparse.Namespace, plan) -> int:
 
 def run_learn(args: argparse.Namespace) -> int:
     plan = _plan(args, seeds=list(range(args.seed, args.seed + args.seeds)), starts=sorted(set(args.init or ["A", "B"])),
-                 updates=args.updates)
+                 updates=args.updates, design=_design(args))
     return _finish(args, plan)
 
 
@@ -163,7 +194,7 @@ def run_compare(args: argparse.Namespace) -> int:
 
 
 def run_all(args: argparse.Namespace) -> int:
-    plan = _plan(args, seeds=list(range(args.seed, args.seed + args.seeds)), starts=["A", "B"], updates=args.updates,
+    plan = _plan(args, seeds=list(range(args.seed, args.seed + args.seeds)), starts=["A", "B"], updates=args.updates, design=_design(args),
                  compare=True, compare_walks=args.walks)
     return _finish(args, plan)
 
@@ -171,10 +202,12 @@ def run_all(args: argparse.Namespace) -> int:
 def _check_span(plan, lo: float, hi: float) -> None:
     from tools.experiment.runner import ExperimentError
 
-    bounds = plan.cfg.controller.step
+    from controller.factory import step_bounds
+
+    bounds = step_bounds(plan.cfg.controller)
     if not bounds.min_m <= lo <= hi <= bounds.max_m:
         raise ExperimentError(f"--min {lo} and --max {hi} must lie in the safe range "
-                              f"[{bounds.min_m}, {bounds.max_m}] m (controller.step), min <= max")
+                              f"[{bounds.min_m:.3f}, {bounds.max_m:.3f}] m (controller.step), min <= max")
 
 
 def _walk_batch(args: argparse.Namespace, plan, jobs) -> list:
@@ -233,6 +266,44 @@ def run_intention(args: argparse.Namespace) -> int:
     return _print(args, s, report_lines(s), "intention.csv, intention.json, intention.md, intention.png")
 
 
+def costmap_spans() -> tuple[list[float], list[float]]:
+    from tools.experiment.costmap import ALPHA_SPAN, XHAT_SPAN
+
+    return list(ALPHA_SPAN), list(XHAT_SPAN)
+
+
+def run_costmap(args: argparse.Namespace) -> int:
+    from tools.experiment import costmap
+    from tools.experiment.report import write_costmap
+
+    plan = _plan(args)
+    grid = costmap.Grid.spanning(args.grid, tuple(args.alpha), tuple(args.xhat))
+    costmap.check_span(grid, plan.cfg)
+    learning = _learning_summary(args.learning or args.out / "summary.json", given=args.learning is not None)
+    jobs = costmap.costmap_jobs(grid, seed=args.seed, walks=args.walks, cycles=plan.cycles, mode=args.mode)
+    s = write_costmap(_walk_batch(args, plan, jobs), args.out, grid, args.walks, plan.cfg, learning)
+    return _print(args, s, costmap.report_lines(s), "costmap.csv, costmap.json, costmap.md, costmap.png")
+
+
+def _learning_summary(path: Path, given: bool) -> dict | None:
+    """The ``learning`` part of an experiment's summary.json (None when there is none and it was not asked for)."""
+    import json
+
+    from tools.experiment.runner import ExperimentError
+
+    if not path.is_file():
+        if given:
+            raise ExperimentError(f"--learning {path}: no such file")
+        return None
+    try:
+        learning = json.loads(path.read_text()).get("learning")
+    except (OSError, ValueError, AttributeError) as exc:
+        raise ExperimentError(f"{path}: not an experiment's summary.json ({exc})") from None
+    if learning is None and given:
+        raise ExperimentError(f"{path}: has no learning runs (from `experiment learn` or `all`)")
+    return learning
+
+
 def run_population(args: argparse.Namespace) -> int:
     from config.loader import load_as
     from config.patient_schema import VirtualPatient
@@ -249,7 +320,7 @@ def run_population(args: argparse.Namespace) -> int:
     else:
         patients = draw_population(args.patients, args.seed)
     plan = population.PopulationPlan(cfg=base.cfg, out=args.out, patients=patients, seed=args.seed, updates=args.updates,
-                                     compare_walks=args.walks, mode=args.mode, workers=args.workers, executor=args.executor,
+                                     design=_design(args), compare_walks=args.walks, mode=args.mode, workers=args.workers, executor=args.executor,
                                      address=args.address)
     bar = Progress(len(patients) * plan.walks_per_patient(), enabled=not args.quiet)
     with StopSignals() as signals, _stdout_for_the_report():

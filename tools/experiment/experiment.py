@@ -18,7 +18,7 @@ from protocol.clock import Clock, MonotonicClock
 from tools.experiment.compare import ADAPTIVE, FIXED_LENGTHS_M, GaitStats, compare_jobs, comparison
 from tools.experiment.falls import swings
 from tools.experiment.intention import quantiles
-from tools.experiment.learn import STARTS, LearningRun, learning_run
+from tools.experiment.learn import STARTS, LearningRun, RolloutDesign, learning_run
 from tools.experiment.runner import ExperimentError, WalkJob, WalkPool
 from tools.experiment.schedule import Run, drive
 
@@ -32,6 +32,7 @@ class Plan:
     seeds: list[int] = field(default_factory=lambda: [0])
     starts: list[str] = field(default_factory=list)
     updates: int = 15
+    design: RolloutDesign = field(default_factory=RolloutDesign)  # paired roll-outs, averaged evaluation
     compare: bool = False
     compare_theta: tuple[float, float] | None = None  # None with learning: the learned one
     compare_walks: int = 10
@@ -55,7 +56,7 @@ class Plan:
 
     def walks_planned(self) -> int:
         k = self.cfg.controller.learning.rollouts_per_update
-        learning = len(self.starts) * len(self.seeds) * (self.updates * (k + 1) + 1)
+        learning = len(self.starts) * len(self.seeds) * self.design.walks_per_run(self.updates, k)
         return learning + (len(FIXED_LENGTHS_M) + 1) * self.compare_walks * (1 if self.compare else 0)
 
 
@@ -111,7 +112,7 @@ def run(plan: Plan, progress: bool = True, stop: Callable[[], bool] | None = Non
     results = Results(plan)
     with WalkPool(plan.cfg, plan.workers, plan.out / "cache", on_done=bar, executor=plan.executor, address=plan.address) as pool:
         runs: dict[str, Run] = {
-            f"{start}-s{seed}": learning_run(plan.cfg, start, seed, updates=plan.updates, mode=plan.mode)
+            f"{start}-s{seed}": learning_run(plan.cfg, start, seed, updates=plan.updates, mode=plan.mode, design=plan.design)
             for seed in plan.seeds for start in plan.starts
         }
         learned = drive(pool, runs, stop)

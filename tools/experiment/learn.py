@@ -3,11 +3,18 @@
 A learning run is a generator: it yields the walks it needs next (the roll-outs of a batch, and
 the noise-free evaluation of the last update beside them) and receives their results, so that
 :func:`tools.experiment.schedule.drive` can run many runs' walks in parallel. Every roll-out is a
-fresh walk of ``N`` gait cycles from standing (the world reloaded), its patient noise seeded from
-(seed, start, update, roll-out); the learner's exploration comes from its own seeded stream, and
-:meth:`controller.pi2.Pi2Learner.ask_batch` draws it exactly as roll-outs one after another would.
-The evaluation walks of a run all use one seed (common random numbers), so that the learning
-curve shows the parameters' effect rather than the patient's noise.
+fresh walk of ``N`` gait cycles from standing (the world reloaded); the learner's exploration comes
+from its own seeded stream, and :meth:`controller.pi2.Pi2Learner.ask_batch` draws it exactly as
+roll-outs one after another would.
+
+Common random numbers (:class:`RolloutDesign`, a property of the experiment in simulation, not of
+the learner: a real patient cannot walk the same intentions twice):
+
+* **Paired roll-outs.** The K roll-outs of an update walk one patient seed (seeded from seed, start
+  and update), so they see the same intention sequence and their costs differ by theta rather than
+  by the patient's luck; every update draws a new one. Unpaired, each roll-out has its own seed.
+* **Averaged evaluation.** The noise-free walk of an update is ``evaluation_walks`` walks of theta
+  on a fixed set of seeds (the same for every update of the run), its cost their mean.
 """
 
 from __future__ import annotations
@@ -22,7 +29,7 @@ from config import Config
 from controller.factory import pi2_params
 from controller import pi2
 from controller.pi2 import Pi2Learner
-from tools.experiment.runner import WalkJob
+from tools.experiment.runner import ExperimentError, WalkJob
 
 #: the paper's starting points (Table II) as theta = (alpha, Xhat_CoM)
 STARTS: dict[str, tuple[float, float]] = {"A": (-1.0, 0.6), "B": (-0.4, 0.9)}
@@ -43,6 +50,23 @@ def rollout_cost(result: dict[str, Any], n: int, fall_cost: float, force_cost: f
     return pi2.rollout_cost(costs, len(costs), n, fall_cost, force_cost)
 
 
+@dataclass(frozen=True)
+class RolloutDesign:
+    """How a learning run draws its walks' seeds (the module docstring)."""
+
+    paired: bool = True
+    evaluation_walks: int = 5
+
+    def __post_init__(self) -> None:
+        if self.evaluation_walks < 1:
+            raise ExperimentError(f"evaluation walks must be at least 1, got {self.evaluation_walks}")
+
+    def walks_per_run(self, updates: int, rollouts: int) -> int:
+        """Walks of one learning run of ``updates`` updates of ``rollouts`` roll-outs: each update's
+        roll-outs and the evaluation before it, and the last evaluation."""
+        return updates * (rollouts + self.evaluation_walks) + self.evaluation_walks
+
+
 @dataclass
 class Update:
     """One point of the learning curve: theta after ``index`` updates (0: the start)."""
@@ -50,9 +74,10 @@ class Update:
     index: int
     theta: tuple[float, float]  # the running theta
     evaluation_theta: tuple[float, float]  # the deployed (averaged) theta, walked noise-free
-    evaluation_cost: float
-    evaluation_cycles: int
-    evaluation_end: str
+    evaluation_cost: float  # the mean over the evaluation walks
+    evaluation_cycles: int  # the fewest gait cycles any evaluation walk completed
+    evaluation_end: str  # "walked" when every evaluation walk did, else the end of the one that fell first
+    evaluation_costs: list[float] = field(default_factory=list)  # per evaluation walk
     batch_mean_cost: float | None = None  # the roll-outs that made this update
     batch_mean_cycles: float | None = None  # their average stable gait cycles
     batch_falls: int | None = None
@@ -85,7 +110,20 @@ class LearningRun:
         }
 
 
-def learning_run(cfg: Config, start: str, seed: int, *, updates: int, mode: str = "sagittal") -> RunGenerator:
+def rollout_seeds(seed: int, start_id: int, update: int, k: int, design: RolloutDesign) -> list[int]:
+    """The patient seeds of update ``update``'s ``k`` roll-outs: one shared seed when paired."""
+    if design.paired:
+        return [walk_seed(seed, start_id, update)] * k
+    return [walk_seed(seed, start_id, update, i + 1) for i in range(k)]
+
+
+def evaluation_seeds(seed: int, start_id: int, design: RolloutDesign) -> list[int]:
+    """The fixed seeds of a run's noise-free evaluations (update 0 is no roll-out's)."""
+    return [walk_seed(seed, start_id, 0, j) for j in range(design.evaluation_walks)]
+
+
+def learning_run(cfg: Config, start: str, seed: int, *, updates: int, mode: str = "sagittal",
+                 design: RolloutDesign = RolloutDesign()) -> RunGenerator:
     """Learn from ``STARTS[start]`` for ``updates`` updates (a generator of walk batches, see the
     module docstring); returns the :class:`LearningRun`."""
     params = pi2_params(cfg.controller)
@@ -94,10 +132,10 @@ def learning_run(cfg: Config, start: str, seed: int, *, updates: int, mode: str 
     learner = Pi2Learner(params, np.array(theta0), np.random.default_rng(np.random.SeedSequence([seed, start_id, 1])))
     run = LearningRun(start=start, seed=seed, theta0=theta0)
     n = params.steps_per_rollout
-    eval_seed = walk_seed(seed, start_id, 0)
+    eval_seeds = evaluation_seeds(seed, start_id, design)
 
-    def evaluation(theta: np.ndarray) -> WalkJob:
-        return WalkJob(seed=eval_seed, cycles=n, theta=_theta(theta), mode=mode)
+    def evaluation(theta: np.ndarray) -> list[WalkJob]:
+        return [WalkJob(seed=s, cycles=n, theta=_theta(theta), mode=mode) for s in eval_seeds]
 
     def cost(result: dict[str, Any]) -> float:
         return rollout_cost(result, n, params.lambda1, params.lambda2)
@@ -106,13 +144,18 @@ def learning_run(cfg: Config, start: str, seed: int, *, updates: int, mode: str 
     batch_summary: dict[str, Any] = {}
     for u in range(1, updates + 2):
         thetas = learner.ask_batch() if u <= updates else []
-        jobs = [WalkJob(seed=walk_seed(seed, start_id, u, k + 1), cycles=n, theta=_theta(t), mode=mode) for k, t in enumerate(thetas)]
-        results = yield [pending_eval, *jobs]
-        evaluated, rollouts = results[0], results[1:]
+        seeds = rollout_seeds(seed, start_id, u, len(thetas), design)
+        jobs = [WalkJob(seed=s, cycles=n, theta=_theta(t), mode=mode) for s, t in zip(seeds, thetas)]
+        results = yield [*pending_eval, *jobs]
+        evaluated, rollouts = results[: len(pending_eval)], results[len(pending_eval):]
+        costs = [round(cost(r), 3) for r in evaluated]
+        worst = min(evaluated, key=lambda r: (r["cycles_completed"], r["end"] == "walked"))
         run.updates.append(Update(
             index=len(run.updates), theta=batch_summary.get("theta", theta0),
-            evaluation_theta=pending_eval.theta, evaluation_cost=round(cost(evaluated), 3),
-            evaluation_cycles=evaluated["cycles_completed"], evaluation_end=evaluated["end"],
+            evaluation_theta=pending_eval[0].theta, evaluation_cost=round(float(np.mean(costs)), 3),
+            evaluation_cycles=worst["cycles_completed"],
+            evaluation_end="walked" if all(r["end"] == "walked" for r in evaluated) else worst["end"],
+            evaluation_costs=costs,
             batch_mean_cost=batch_summary.get("mean_cost"), batch_mean_cycles=batch_summary.get("mean_cycles"),
             batch_falls=batch_summary.get("falls"), noise=batch_summary.get("noise"),
         ))

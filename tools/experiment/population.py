@@ -20,7 +20,7 @@ from config import Config, config_to_dict
 from config.patient_schema import VirtualPatient
 from protocol.clock import MonotonicClock
 from tools.experiment.compare import ADAPTIVE, GaitStats, compare_jobs, comparison
-from tools.experiment.learn import LearningRun, learning_run, walk_seed
+from tools.experiment.learn import LearningRun, RolloutDesign, learning_run, walk_seed
 from tools.experiment.runner import ExperimentError, WalkPool
 from tools.experiment.schedule import Run, RunFailed, drive
 
@@ -35,6 +35,7 @@ class PopulationPlan:
     patients: list[VirtualPatient]
     seed: int = 0
     updates: int = 15
+    design: RolloutDesign = field(default_factory=RolloutDesign)
     compare_walks: int = 10
     mode: str | None = None  # None: the configuration's sim.mode
     workers: int = 2
@@ -60,8 +61,8 @@ class PopulationPlan:
         """Learning from START and the comparison: what ``experiment all`` plans for one start."""
         from tools.experiment.experiment import Plan
 
-        return Plan(cfg=self.cfg, out=self.out, starts=[START], updates=self.updates, compare=True,
-                    compare_walks=self.compare_walks).walks_planned()
+        return Plan(cfg=self.cfg, out=self.out, starts=[START], updates=self.updates, design=self.design,
+                    compare=True, compare_walks=self.compare_walks).walks_planned()
 
 
 @dataclass
@@ -133,7 +134,7 @@ def patient_run(plan: PopulationPlan, index: int) -> Run:
     """Patient ``index`` of ``plan``: learning from start A, then the comparison at the learned theta."""
     patient = plan.patients[index]
     seed = walk_seed(plan.seed, 32, index)
-    learned = yield from with_patient(learning_run(plan.cfg, START, seed, updates=plan.updates, mode=plan.mode), patient)
+    learned = yield from with_patient(learning_run(plan.cfg, START, seed, updates=plan.updates, mode=plan.mode, design=plan.design), patient)
     theta = learned.final.evaluation_theta
     jobs = compare_jobs(theta, seed=seed, walks=plan.compare_walks, cycles=plan.cycles, mode=plan.mode)
     gaits = yield from with_patient(comparison(jobs), patient)

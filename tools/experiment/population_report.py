@@ -28,6 +28,7 @@ def summary(res: PopulationResults) -> dict[str, Any]:
     reductions = [p["stick_force_reduction_pct"] for p in patients if p["stick_force_reduction_pct"] is not None]
     return {
         "experiment": "population", "seed": plan.seed, "patients": len(plan.patients), "start": START, "updates": plan.updates,
+        "paired_rollouts": plan.design.paired, "evaluation_walks": plan.design.evaluation_walks,
         "cycles_per_rollout": plan.cycles, "compare_walks": plan.compare_walks, "mode": plan.mode,
         "walks_per_patient": plan.walks_per_patient(), "walks_run": res.walks_run, "walks_reused": res.walks_reused,
         "wall_time_s": round(res.wall_time_s, 1), "workers": plan.workers, "executor": plan.executor,

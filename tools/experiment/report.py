@@ -56,6 +56,7 @@ def summary(res: Results) -> dict[str, Any]:
                                                             ((r.start, r.theta0) for r in res.learning)},
         "updates": plan.updates, "cycles_per_rollout": n,
         "rollouts_per_update": plan.cfg.controller.learning.rollouts_per_update,
+        "paired_rollouts": plan.design.paired, "evaluation_walks": plan.design.evaluation_walks,
         "walks_run": res.walks_run, "walks_reused": res.walks_reused, "wall_time_s": round(res.wall_time_s, 1),
         "workers": plan.workers,
         "executor": plan.executor,
@@ -115,6 +116,23 @@ def write_falls(results: list[dict[str, Any]], out: Path) -> dict[str, Any]:
     falls.figure(results, s, out / "falls.png", _canvas, _save)
     _write(out / "falls.json", json.dumps(s, indent=2) + "\n")
     _write(out / "falls.md", "# Random step lengths: where the walks end\n\n" + "\n".join(falls.report_lines(s)) + "\n")
+    return s
+
+
+def write_costmap(results: list[dict[str, Any]], out: Path, grid, walks: int, cfg, learning: dict[str, Any] | None) -> dict[str, Any]:
+    """The cost map (:mod:`tools.experiment.costmap`) under ``out``: costmap.csv, costmap.json,
+    costmap.png and costmap.md; returns the summary."""
+    from tools.experiment import costmap
+
+    out.mkdir(parents=True, exist_ok=True)
+    s = costmap.analyse(results, grid, walks, cfg, learning)
+    rows = [{"alpha": a, "xhat": x, "cost": c, "walked_full": f}
+            for x, cost_row, full_row in zip(s["grid"]["xhat"], s["cost"], s["walked_full"])
+            for a, c, f in zip(s["grid"]["alpha"], cost_row, full_row)]
+    _write(out / "costmap.csv", _csv(rows))
+    costmap.figure(s, out / "costmap.png", _canvas, _save)
+    _write(out / "costmap.json", json.dumps(s, indent=2) + "\n")
+    _write(out / "costmap.md", "# The noise-free cost of theta\n\n" + "\n".join(costmap.report_lines(s)) + "\n")
     return s
 
 
@@ -307,7 +325,8 @@ def report(s: dict[str, Any]) -> str:
     """Markdown: our numbers beside the paper's."""
     lines = ["# The paper's experiments, reproduced", "",
              f"Mode {s['mode']}, seeds {s['seeds']}, {s['cycles_per_rollout']} gait cycles per roll-out, "
-             f"an update every {s['rollouts_per_update']} roll-outs, up to {s['updates']} updates; "
+             f"an update every {s['rollouts_per_update']} roll-outs ({'paired: one patient seed' if s['paired_rollouts'] else 'unpaired: a seed each'}), "
+             f"up to {s['updates']} updates, each evaluated noise-free over {s['evaluation_walks']} fixed seeds; "
              f"{s['walks_run']} walks run and {s['walks_reused']} reused in {s['wall_time_s'] / 60:.1f} min on {s['workers']} workers.", ""]
     if "learning" in s:
         checks = s["learning"]["checks"]
