@@ -520,11 +520,12 @@ def test_F18_a_push_that_topples_the_hhea_is_a_fall():
         step = world.step
         pushing = {"steps": int(0.3 / world.dt)}
 
-        def pushed():
-            if pushing["steps"] > 0:
-                world.client.applyExternalForce(world.robot, -1, [-600.0, 0.0, 0.0], [0.0, 0.0, 0.2], pybullet.LINK_FRAME)
-                pushing["steps"] -= 1
-            step()
+        def pushed(n: int = 1):  # an external force acts for one physics step: apply it before each
+            for _ in range(n):
+                if pushing["steps"] > 0:
+                    world.client.applyExternalForce(world.robot, -1, [-600.0, 0.0, 0.0], [0.0, 0.0, 0.2], pybullet.LINK_FRAME)
+                    pushing["steps"] -= 1
+                step()
 
         world.step = pushed
         t0 = rig.tick + 1
