@@ -23,17 +23,18 @@ def _walk(theta: tuple[float, float], seed: int) -> dict:
     return {"cycle_costs": [force, force], "fell": False, "cycles_completed": 2, "end": "walked"}
 
 
-def _results(walks: int) -> list[dict]:
-    return [_walk(j.theta, j.seed) for j in costmap.costmap_jobs(GRID, seed=0, walks=walks, cycles=2, mode="full3d")]
+def _results(walks: int, learning: dict | None = None) -> list[dict]:
+    jobs = costmap.costmap_jobs(GRID, seed=0, walks=walks, cycles=2, mode="full3d", ends=costmap.learned_ends(learning))
+    return [_walk(j.theta, j.seed) for j in jobs]
 
 
-def test_every_theta_walks_the_same_seeds():
-    jobs = costmap.costmap_jobs(GRID, seed=0, walks=3, cycles=2, mode="full3d")
-    assert len(jobs) == 9 * 3
+def test_every_theta_and_every_learned_end_walk_the_same_seeds():
+    jobs = costmap.costmap_jobs(GRID, seed=0, walks=3, cycles=2, mode="full3d", ends=[(-0.3, 0.55)])
+    assert len(jobs) == (9 + 1) * 3 and {j.theta for j in jobs[-3:]} == {(-0.3, 0.55)}
     by_theta = {}
     for j in jobs:
         by_theta.setdefault(j.theta, []).append(j.seed)
-    assert len(by_theta) == 9 and all(seeds == costmap.map_seeds(0, 3) for seeds in by_theta.values())
+    assert len(by_theta) == 10 and all(seeds == costmap.map_seeds(0, 3) for seeds in by_theta.values())
     assert len(set(costmap.map_seeds(0, 3))) == 3
 
 
@@ -48,14 +49,6 @@ def test_the_map_finds_its_minimum_and_the_valley_within_3_percent():
     assert s["walked_full"] == [[2] * 3] * 3
 
 
-def test_the_map_interpolates_between_grid_points_and_not_outside():
-    costs = np.array([[0.0, 1.0, 2.0], [10.0, 11.0, 12.0], [20.0, 21.0, 22.0]])
-    assert costmap.interpolate(GRID, costs, (-1.0, 0.5)) == 0.0
-    assert costmap.interpolate(GRID, costs, (-0.75, 0.6)) == pytest.approx(5.5)
-    assert costmap.interpolate(GRID, costs, (0.0, 0.9)) == 22.0
-    assert costmap.interpolate(GRID, costs, (0.1, 0.7)) is None
-
-
 def _learning(end_a: tuple[float, float], end_b: tuple[float, float], median_diff: float, agree: bool) -> dict:
     runs = [{"start": s, "seed": 0, "updates": [{"evaluation_theta": list(t0)}, {"evaluation_theta": list(end)}]}
             for s, t0, end in (("A", (-1.0, 0.6), end_a), ("B", (-0.4, 0.9), end_b))]
@@ -63,18 +56,22 @@ def _learning(end_a: tuple[float, float], end_b: tuple[float, float], median_dif
                                                      "lines": {"difference_m": [0.05, median_diff, 0.05]}}}}}
 
 
+def _analyse(learning: dict) -> dict:
+    return costmap.analyse(_results(1, learning), GRID, 1, CFG, learning)
+
+
 def test_the_report_says_where_a_and_b_ended_and_which_agreement_held():
-    s = costmap.analyse(_results(1), GRID, 1, CFG, _learning((-0.5, 0.7), (-0.48, 0.705), 0.015, agree=False))
+    s = _analyse(_learning((-0.5, 0.7), (-0.48, 0.705), 0.015, agree=False))
     runs = {r["run"]: r for r in s["learning"]["runs"]}
     assert runs["A-s0"]["in_valley"] and runs["B-s0"]["in_valley"]
     assert runs["A-s0"]["path"] == [[-1.0, 0.6], [-0.5, 0.7]]
+    assert runs["B-s0"]["cost_at_end"] == _walk((-0.48, 0.705), costmap.map_seeds(0, 1)[0])["cycle_costs"][0] * 2  # walked, not interpolated
     assert s["learning"]["seeds"]["0"]["held"] == "valley"
     text = "\n".join(costmap.report_lines(s))
     assert "both end in the valley" in text and "| A-s0 | (-0.500, 0.700)" in text
-    apart = costmap.analyse(_results(1), GRID, 1, CFG, _learning((-0.5, 0.7), (-1.0, 0.5), 0.015, agree=False))
-    assert apart["learning"]["seeds"]["0"]["held"] == "neither"  # B ended outside the valley
-    same = costmap.analyse(_results(1), GRID, 1, CFG, _learning((-1.0, 0.5), (-1.0, 0.5), 0.0, agree=True))
-    assert same["learning"]["seeds"]["0"]["held"] == "theta or lines"
+    assert _analyse(_learning((-0.5, 0.7), (-1.0, 0.5), 0.015, agree=False))["learning"]["seeds"]["0"]["held"] == "neither"  # B outside
+    assert _analyse(_learning((-0.5, 0.7), (-0.48, 0.705), 0.03, agree=False))["learning"]["seeds"]["0"]["held"] == "neither"  # lines apart
+    assert _analyse(_learning((-1.0, 0.5), (-1.0, 0.5), 0.0, agree=True))["learning"]["seeds"]["0"]["held"] == "theta or lines"
 
 
 def test_a_bad_grid_is_a_one_line_error():

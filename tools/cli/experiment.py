@@ -280,7 +280,8 @@ def run_costmap(args: argparse.Namespace) -> int:
     grid = costmap.Grid.spanning(args.grid, tuple(args.alpha), tuple(args.xhat))
     costmap.check_span(grid, plan.cfg)
     learning = _learning_summary(args.learning or args.out / "summary.json", given=args.learning is not None)
-    jobs = costmap.costmap_jobs(grid, seed=args.seed, walks=args.walks, cycles=plan.cycles, mode=args.mode)
+    jobs = costmap.costmap_jobs(grid, seed=args.seed, walks=args.walks, cycles=plan.cycles, mode=args.mode,
+                                ends=costmap.learned_ends(learning))
     s = write_costmap(_walk_batch(args, plan, jobs), args.out, grid, args.walks, plan.cfg, learning)
     return _print(args, s, costmap.report_lines(s), "costmap.csv, costmap.json, costmap.md, costmap.png")
 

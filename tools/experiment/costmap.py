@@ -5,7 +5,8 @@ Every theta = (alpha, Xhat_CoM) of an ``n`` by ``n`` grid walks the same ``W`` p
 by the patient's luck); its cost is the mean of equation (11) over them. The map gives its minimum,
 the set of theta within ``WITHIN`` of it (how flat the valley is: where the noise of one walk
 cannot tell theta apart) and, drawn on it, the deployed theta of learning runs update by update
-(from a ``summary.json`` of ``aider-exo experiment learn`` or ``all``): where A and B ended on it.
+(from a ``summary.json`` of ``aider-exo experiment learn`` or ``all``); each run's end walks the
+same seeds, so whether A and B ended in the valley is measured, not interpolated.
 """
 
 from __future__ import annotations
@@ -60,67 +61,62 @@ def map_seeds(seed: int, walks: int) -> list[int]:
     return [walk_seed(seed, 300, j) for j in range(walks)]
 
 
-def costmap_jobs(grid: Grid, *, seed: int, walks: int, cycles: int, mode: str) -> list[WalkJob]:
-    """Every grid point on the same ``walks`` seeds."""
+def learned_ends(learning: dict[str, Any] | None) -> list[tuple[float, float]]:
+    """The deployed theta each learning run of ``learning`` ended at, in its order."""
+    return [tuple(r["updates"][-1]["evaluation_theta"]) for r in (learning or {}).get("runs", [])]
+
+
+def costmap_jobs(grid: Grid, *, seed: int, walks: int, cycles: int, mode: str,
+                 ends: list[tuple[float, float]] = ()) -> list[WalkJob]:
+    """Every grid point, then every learning run's end (``ends``), on the same ``walks`` seeds."""
     seeds = map_seeds(seed, walks)
-    return [WalkJob(seed=s, cycles=cycles, theta=theta, mode=mode) for theta in grid.thetas() for s in seeds]
-
-
-def interpolate(grid: Grid, costs: np.ndarray, theta: tuple[float, float]) -> float | None:
-    """The map's cost at ``theta`` (bilinear between grid points; None outside the grid)."""
-    a, x = theta
-    alphas, xhats = np.array(grid.alphas), np.array(grid.xhats)
-    if not (alphas[0] <= a <= alphas[-1] and xhats[0] <= x <= xhats[-1]):
-        return None
-    i = min(int(np.searchsorted(alphas, a, side="right")) - 1, len(alphas) - 2)
-    j = min(int(np.searchsorted(xhats, x, side="right")) - 1, len(xhats) - 2)
-    u = (a - alphas[i]) / (alphas[i + 1] - alphas[i])
-    v = (x - xhats[j]) / (xhats[j + 1] - xhats[j])
-    c = costs[j:j + 2, i:i + 2]
-    return float((1 - v) * ((1 - u) * c[0, 0] + u * c[0, 1]) + v * ((1 - u) * c[1, 0] + u * c[1, 1]))
+    return [WalkJob(seed=s, cycles=cycles, theta=theta, mode=mode) for theta in [*grid.thetas(), *ends] for s in seeds]
 
 
 def analyse(results: list[dict[str, Any]], grid: Grid, walks: int, cfg, learning: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The map from the walks of :func:`costmap_jobs` (in its order), and where ``learning`` (the
-    ``learning`` part of an experiment's summary.json) went on it."""
+    """The map from the walks of :func:`costmap_jobs` (in its order, the ends of ``learning``'s
+    runs after the grid), and where ``learning`` (the ``learning`` part of an experiment's
+    summary.json) ended on it."""
     params = pi2_params(cfg.controller)
     n = params.steps_per_rollout
-    per_theta = [results[k * walks:(k + 1) * walks] for k in range(len(grid.thetas()))]
-    cost = np.array([np.mean([rollout_cost(r, n, params.lambda1, params.lambda2) for r in rs]) for rs in per_theta])
-    full = np.array([sum(r["cycles_completed"] >= n for r in rs) for rs in per_theta])
+
+    def cost(rs: list[dict[str, Any]]) -> float:
+        return float(np.mean([rollout_cost(r, n, params.lambda1, params.lambda2) for r in rs]))
+
+    thetas = grid.thetas()
+    per_theta = [results[k * walks:(k + 1) * walks] for k in range(len(thetas) + len(learned_ends(learning)))]
+    on_grid, at_ends = per_theta[:len(thetas)], per_theta[len(thetas):]
+    grid_cost = np.array([cost(rs) for rs in on_grid])
+    full = np.array([sum(r["cycles_completed"] >= n for r in rs) for rs in on_grid])
     shape = (len(grid.xhats), len(grid.alphas))
-    costs = cost.reshape(shape)
-    best = int(np.argmin(cost))
-    limit = (1 + WITHIN) * float(cost[best])
-    valley = [list(t) for t, c in zip(grid.thetas(), cost) if c <= limit]
-    out: dict[str, Any] = {
+    best = int(np.argmin(grid_cost))
+    limit = (1 + WITHIN) * float(grid_cost[best])
+    return {
         "grid": {"alpha": list(grid.alphas), "xhat": list(grid.xhats)}, "walks_per_theta": walks, "cycles": n,
-        "cost": np.round(costs, 3).tolist(), "walked_full": full.reshape(shape).tolist(),
-        "minimum": {"theta": list(grid.thetas()[best]), "cost": round(float(cost[best]), 3)},
-        "within": WITHIN, "valley": valley, "valley_cost_limit": round(limit, 3),
-        "starts": {k: list(v) for k, v in STARTS.items()},
-        "learning": _learning_on_map(grid, costs, limit, learning, cfg) if learning else None,
+        "cost": np.round(grid_cost.reshape(shape), 3).tolist(), "walked_full": full.reshape(shape).tolist(),
+        "minimum": {"theta": list(thetas[best]), "cost": round(float(grid_cost[best]), 3)},
+        "within": WITHIN, "valley": [list(t) for t, c in zip(thetas, grid_cost) if c <= limit],
+        "valley_cost_limit": round(limit, 3), "starts": {k: list(v) for k, v in STARTS.items()},
+        "learning": _learning_on_map(learning, [cost(rs) for rs in at_ends], [sum(r["cycles_completed"] >= n for r in rs) for rs in at_ends],
+                                     limit) if learning else None,
     }
-    return out
 
 
-def _learning_on_map(grid: Grid, costs: np.ndarray, limit: float, learning: dict[str, Any], cfg) -> dict[str, Any]:
-    """Each run's path and end on the map; per seed with both starts, which of the issue's two
-    agreements held (the same theta or lines, or both ends in the valley with lines agreeing at
-    the median X within VALLEY_LINE_AGREEMENT_M)."""
+def _learning_on_map(learning: dict[str, Any], end_costs: list[float], end_full: list[int], limit: float) -> dict[str, Any]:
+    """Each run's path and its end, walked on the map's seeds; per seed with both starts, which of
+    the issue's two agreements held (the same theta or lines, or both ends in the valley with lines
+    agreeing at the median X within VALLEY_LINE_AGREEMENT_M)."""
     runs = []
-    for r in learning["runs"]:
-        end = tuple(r["updates"][-1]["evaluation_theta"])
-        at = interpolate(grid, costs, end)
+    for r, end, cost, full in zip(learning["runs"], learned_ends(learning), end_costs, end_full):
         runs.append({"run": f"{r['start']}-s{r['seed']}", "start": r["start"], "seed": r["seed"],
                      "path": [u["evaluation_theta"] for u in r["updates"]], "end": list(end),
-                     "map_cost_at_end": None if at is None else round(at, 3), "in_valley": at is not None and at <= limit})
+                     "cost_at_end": round(cost, 3), "walked_full_at_end": full, "in_valley": cost <= limit})
     seeds = {}
     for seed, lines in learning.get("checks", {}).get("seeds", {}).items():
         ends = {r["start"]: r for r in runs if str(r["seed"]) == str(seed)}
         diff = lines["lines"]["difference_m"]
         median_diff = None if diff is None else diff[1]
-        both_in = all(ends[s]["in_valley"] for s in ("A", "B") if s in ends) and {"A", "B"} <= set(ends)
+        both_in = {"A", "B"} <= set(ends) and ends["A"]["in_valley"] and ends["B"]["in_valley"]
         valley_agrees = bool(both_in and median_diff is not None and median_diff <= VALLEY_LINE_AGREEMENT_M + 1e-9)
         seeds[str(seed)] = {"same_or_lines_agree": lines["same_or_lines_agree"], "both_in_valley": both_in,
                             "median_line_difference_m": median_diff, "valley_agreement": valley_agrees,
@@ -172,10 +168,11 @@ def report_lines(s: dict[str, Any]) -> list[str]:
         lines.append(f"| {x:.2f} | " + " | ".join(cells) + " |")
     lines += ["", "Each cell: mean cost (walks of the full cycles); bold: within the valley."]
     if s["learning"]:
-        lines += ["", "| learning run | end theta (alpha, Xhat) | map cost there | in the valley |", "|---|---|---|---|"]
+        lines += ["", f"| learning run | end theta (alpha, Xhat) | its cost on the map's seeds (full walks of {s['walks_per_theta']}) "
+                      "| in the valley |", "|---|---|---|---|"]
         for r in s["learning"]["runs"]:
-            cost = "outside the map" if r["map_cost_at_end"] is None else f"{r['map_cost_at_end']:.0f}"
-            lines.append(f"| {r['run']} | ({r['end'][0]:.3f}, {r['end'][1]:.3f}) | {cost} | {'yes' if r['in_valley'] else 'no'} |")
+            lines.append(f"| {r['run']} | ({r['end'][0]:.3f}, {r['end'][1]:.3f}) | {r['cost_at_end']:.0f} ({r['walked_full_at_end']}) "
+                         f"| {'yes' if r['in_valley'] else 'no'} |")
         for seed, c in s["learning"]["seeds"].items():
             diff = "-" if c["median_line_difference_m"] is None else f"{c['median_line_difference_m']:.3f} m"
             lines += ["", f"Seed {seed}: A and B {HELD[c['held']]} (their lines apart at the median X by {diff}; "
