@@ -76,7 +76,7 @@ class Update:
     evaluation_theta: tuple[float, float]  # the deployed (averaged) theta, walked noise-free
     evaluation_cost: float  # the mean over the evaluation walks
     evaluation_cycles: int  # the fewest gait cycles any evaluation walk completed
-    evaluation_end: str  # "walked" when every evaluation walk did, else the end of the one that fell first
+    evaluation_end: str  # "walked" when every evaluation walk did, else the end of the one with the fewest cycles
     evaluation_costs: list[float] = field(default_factory=list)  # per evaluation walk
     batch_mean_cost: float | None = None  # the roll-outs that made this update
     batch_mean_cycles: float | None = None  # their average stable gait cycles
