@@ -4,8 +4,9 @@
 const HISTORY_S = 10;
 const COLORS = { l: "#1f77b4", r: "#ff7f0e", com: "#d62828", poly: "#219ebc", cmd: "#6a4c93" };
 const series = { fields: [], columns: {} };  // field -> array of values, in time order
-// What the page measured, for tests and `aider-exo bench view`: frame-to-page latency (s) and updates.
-window.viewStats = { updates: 0, frames: 0, latencies: [], lastNewest: null, lastState: null, states: [] };
+// What the page measured, for tests and `aider-exo bench view`: frame-to-page latency (s), updates,
+// the gait states it showed and the range of X_CoM/X_SP it showed.
+window.viewStats = { updates: 0, frames: 0, latencies: [], lastNewest: null, lastState: null, states: [], xRatio: null };
 
 const $ = (id) => document.getElementById(id);
 // Set an element's text or markup only when it changes: the browser then lays out and paints
@@ -63,6 +64,10 @@ function update(s) {
   put($("bus-time"), `${fmt(s.t, 1)} s`);
   put($("bus-load"), `${fmt(100 * s.bus_load, 1)} %`);
   put($("x-ratio"), s.estimate ? fmt(s.estimate.x_ratio) : "–");
+  if (s.estimate && Number.isFinite(s.estimate.x_ratio)) {
+    const x = s.estimate.x_ratio, r = window.viewStats.xRatio;
+    window.viewStats.xRatio = r === null ? { min: x, max: x } : { min: Math.min(r.min, x), max: Math.max(r.max, x) };
+  }
   put($("landed"), g.landed.map((st) => `<li value="${st.step}">${st.leg}: ${fmt(st.length_m, 3)} m at ${fmt(st.t, 1)} s</li>`).join(""), true);
   const st = g.controller_step;
   put($("commanded"), st && st.commanded_m !== null ? `${fmt(st.commanded_m, 3)} m (step ${st.index})` : "–");
