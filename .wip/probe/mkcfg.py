@@ -1,7 +1,7 @@
 """mkcfg.py OUT key.path=value ...: the default config with overrides, written as YAML."""
-import sys, yaml
-sys.path.insert(0, "/work/i43")
-d = yaml.safe_load(open("/work/i43/config/default.yaml"))
+import os, sys, yaml
+sys.path.insert(0, os.environ.get("WT", "/work/i43m"))
+d = yaml.safe_load(open(os.environ.get("WT", "/work/i43m") + "/config/default.yaml"))
 for kv in sys.argv[2:]:
     k, v = kv.split("=", 1)
     node = d
