@@ -26,7 +26,7 @@ def measurements(reading) -> Measurements:
 
 
 def test_rot_rpy_matches_the_imu_convention():
-    from sim.sensors import rpy_from_matrix
+    from sim.linalg import rpy_from_matrix
 
     rng = np.random.default_rng(0)
     for _ in range(20):

@@ -91,7 +91,8 @@ def run_body(args: argparse.Namespace) -> int:
     stick_m = args.stick_length or base.sim.model.sticks.length_m * args.height / base.sim.model.patient.height_m
     try:
         overrides = estimated_body(base, mass_kg=args.mass, height_m=args.height, stick_m=stick_m, source="aider-exo config body")
-        controller = config_to_dict(with_overrides(base, overrides, source="aider-exo config body"))["controller"]  # its checks too
+        patient = with_overrides(base, overrides, source="aider-exo config body")  # its checks too
+        controller = config_to_dict(patient)["controller"]
     except ConfigError as exc:
         option = _BODY_OPTIONS.get(exc.key or "")
         if option is None:
@@ -102,7 +103,7 @@ def run_body(args: argparse.Namespace) -> int:
         _, section, name = key.split(".")
         value = controller[section][name]
         nested["controller"][section][name] = [round(v, 4) for v in value] if isinstance(value, list) else round(value, 4)
-    step = _step_metres(with_overrides(base, overrides, source="aider-exo config body").controller)
+    step = _step_metres(patient.controller)
     if args.json:
         print_json({"mass_kg": args.mass, "height_m": args.height, "stick_length_m": round(stick_m, 4), "step_m": step, **nested})
         return 0
