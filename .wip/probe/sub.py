@@ -7,6 +7,8 @@ from config.loader import load_config
 from tools.experiment.runner import WalkJob, run_walk
 from tools.experiment.learn import walk_seed
 import os
+if os.environ.get('OPTC'):
+    import optc
 if os.environ.get("NOCAP"):
     import sim.patient as P
     from sim.linalg import clamp as _clamp
