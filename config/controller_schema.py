@@ -37,7 +37,8 @@ class LegConfig:
 class SwingConfig:
     """The swing-ankle DMP and its demonstration."""
 
-    duration_s: float = field_spec(doc="Swing duration tau.", unit="s", min=0.3, max=5.0)
+    duration_scaled: float = field_spec(doc="Swing duration tau in units of sqrt(leg length / g) (dynamic similarity, Hof 1996): one value serves every leg length; seconds in `aider-exo config check`.", unit="-", min=1.0, max=16.0)
+    demonstration_duration_s: float = field_spec(doc="Duration of the demonstration the DMP is fitted to (the fit does not depend on it: a DMP scales in time).", unit="s", min=0.3, max=5.0)
     clearance_m: float = field_spec(doc="Peak ankle lift of the demonstration.", unit="m", min=0.02, max=0.3)
     demonstration_step_m: float = field_spec(doc="Step length of the demonstration the DMP is fitted to (goals shorter than it make the foot dip backward first: the Pastor form does not scale the shape).", unit="m", min=0.02, max=0.6)
     n_basis: int = field_spec(doc="Gaussian basis functions per dimension.", min=3, max=200)

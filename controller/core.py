@@ -40,7 +40,7 @@ from config.controller_schema import ControllerConfig
 from controller.dmp import Dmp, DmpWeights
 from controller.envelope import Envelope, JointBounds, JointCommand
 from controller.estimator import Estimate, Measurements, StateEstimator
-from controller.factory import balance_gains, leg as make_leg, leg_loads, step_bounds
+from controller.factory import balance_gains, leg as make_leg, leg_loads, step_bounds, swing_duration_s
 from controller.fsm import SWINGS, FsmInputs, GaitFsm
 from controller.gait import GaitPlanner
 from controller.policy import StepPolicy, StepRecord
@@ -131,7 +131,8 @@ class ControllerCore:
 
             swing_weights = load_swing(cfg)
         self.gait = GaitPlanner(make_leg(cfg), Dmp(swing_weights), cfg.gait, leg_loads(cfg), balance_gains(cfg),
-                                ankle_height_m=cfg.legs.ankle_height_m, dt_s=TICK_MS / 1000.0, substeps=cfg.swing.substeps)
+                                ankle_height_m=cfg.legs.ankle_height_m, swing_s=swing_duration_s(cfg), dt_s=TICK_MS / 1000.0,
+                                substeps=cfg.swing.substeps)
         self.policy = policy or StepPolicy(step_bounds(cfg), theta=(cfg.compensation.alpha, cfg.compensation.xhat_com))
         self.fall_tilt_rad = safety.fall_tilt_rad
         self._tilted_ticks = 0

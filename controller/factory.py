@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
+import math
 import os
-
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from config.controller_schema import ControllerConfig
-from controller.balance import BalanceGains, LegLoads
+from controller.balance import GRAVITY, BalanceGains, LegLoads
 from controller.compensation import StepBounds
 from controller.kinematics import Leg
 from controller.pi2 import Pi2Learner, Pi2Params
@@ -45,6 +45,17 @@ def step_bounds(cfg: ControllerConfig) -> StepBounds:
     to STEP_RESOLUTION_DIGITS decimals (the reference patient's fractions give its round metres)."""
     leg, s = cfg.legs.length_m, cfg.step
     return StepBounds(*(round(f * leg, STEP_RESOLUTION_DIGITS) for f in (s.init_fraction, s.min_fraction, s.max_fraction)))
+
+
+#: swings last a whole millisecond
+SWING_RESOLUTION_DIGITS = 3
+
+
+def swing_duration_s(cfg: ControllerConfig) -> float:
+    """The swing's duration tau in seconds: ``swing.duration_scaled`` in units of sqrt(leg length / g),
+    so that patients of every size swing at the same Froude number (dynamic similarity, Hof 1996),
+    to the millisecond."""
+    return round(cfg.swing.duration_scaled * math.sqrt(cfg.legs.length_m / GRAVITY), SWING_RESOLUTION_DIGITS)
 
 
 def pi2_params(cfg: ControllerConfig) -> Pi2Params:

@@ -152,8 +152,9 @@ class GaitPlanner:
     """
 
     def __init__(self, leg: kin.Leg, dmp: Dmp, params: GaitConfig, loads: LegLoads, gains: BalanceGains, *, ankle_height_m: float,
-                 dt_s: float, substeps: int) -> None:
+                 swing_s: float, dt_s: float, substeps: int) -> None:
         self.leg, self.dmp, self.p = leg, dmp, params
+        self.swing_s = swing_s  # the swing's duration tau (the patient's: controller.factory.swing_duration_s)
         self.loads, self.gains, self.ankle_height_m = loads, gains, ankle_height_m
         self.dt_s, self.substeps = dt_s, substeps
         self.sticks = StickTracker(params, dt_s)
@@ -398,7 +399,7 @@ class GaitPlanner:
         stance = 1 - leg
         start = est.ankles[leg] - est.ankles[stance]
         aim = length_m + self.aim_offset_m
-        self.dmp.reset(x0=np.array([start[0], start[2]]), goal=np.array([aim, -self.p.landing_depth_m]))
+        self.dmp.reset(x0=np.array([start[0], start[2]]), goal=np.array([aim, -self.p.landing_depth_m]), tau_s=self.swing_s)
         self.swing_leg, self.swing_t, self.step_length_m = leg, 0.0, length_m
         self.swing_from_x = self._com_x  # over the stance ankle: the reference of the lean that led here
         self.sticks.reset()  # the next cycle's stick moves count from now
@@ -408,7 +409,7 @@ class GaitPlanner:
         leg, p = self.swing_leg, self.p
         stance = 1 - leg
         com_x = self._over(est, stance)
-        tau = self.dmp.tau_s
+        tau = self.swing_s
         self.goal_x = self.swing_from_x + p.hip_advance_fraction * self.step_length_m * minimum_jerk(self.swing_t / tau)
         xz = self.dmp.step(self.dt_s, self.substeps) if not self.dmp.done else self.dmp.x
         self.swing_t += self.dt_s

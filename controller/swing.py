@@ -36,7 +36,7 @@ def dmp_params(cfg: ControllerConfig) -> DmpParams:
 
 def demonstration(cfg: ControllerConfig) -> tuple[np.ndarray, np.ndarray]:
     """The demonstration the weights are fitted to: (times (m,), ankle x and z from the start (m, 2))."""
-    return swing_demonstration(step_m=cfg.swing.demonstration_step_m, lift_m=cfg.swing.clearance_m, duration_s=cfg.swing.duration_s)
+    return swing_demonstration(step_m=cfg.swing.demonstration_step_m, lift_m=cfg.swing.clearance_m, duration_s=cfg.swing.demonstration_duration_s)
 
 
 def _identity(cfg: ControllerConfig) -> dict[str, Any]:

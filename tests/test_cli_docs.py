@@ -43,8 +43,8 @@ def test_config_check_accepts_the_packaged_file_and_names_the_key_of_a_bad_one(t
     assert main(["config", "check", str(ROOT / "config" / "default.yaml"), "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["valid"] and result["sections"] == {"protocol": True, "controller": True, "sim": True, "nodes": True}
-    # the step bounds, fractions of the leg length in the file, in metres beside them
-    assert result["step_m"] == {"leg_length": 0.927, "init": 0.15, "min": 0.06, "max": 0.25}
+    # the step bounds and the swing's duration, scaled with the leg length in the file, in metres and seconds
+    assert result["step_m"] == {"leg_length": 0.927, "init": 0.15, "min": 0.06, "max": 0.25} and result["swing_s"] == 1.2
     bad = tmp_path / "bad.yaml"
     bad.write_text((ROOT / "config" / "default.yaml").read_text().replace("bitrate_bit_s: 1_000_000", "bitrate_bit_s: -5", 1))
     assert main(["config", "check", str(bad)]) == 1

@@ -51,14 +51,16 @@ def test_a_taller_heavier_patient_has_longer_legs_and_a_heavier_trunk(capsys):
     assert large["body"]["trunk_kg"] > small["body"]["trunk_kg"] and large["body"]["elbow_to_tip_m"] > small["body"]["elbow_to_tip_m"]
 
 
-def test_json_names_the_patient_and_its_step_bounds_in_metres(capsys):
+def test_json_names_the_patient_its_step_bounds_in_metres_and_its_swing_in_seconds(capsys):
     assert main(["config", "body", "--mass", "70", "--height", "1.75", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["mass_kg"] == 70 and out["height_m"] == 1.75 and set(out["controller"]) == {"legs", "body"}
     assert out["step_m"]["leg_length"] == pytest.approx(0.927, abs=1e-3) and out["step_m"]["init"] == pytest.approx(0.150, abs=1e-3)
     assert main(["config", "body", "--mass", "60", "--height", "1.55", "--json"]) == 0
-    short = json.loads(capsys.readouterr().out)["step_m"]
-    assert short["max"] / out["step_m"]["max"] == pytest.approx(short["leg_length"] / out["step_m"]["leg_length"], rel=1e-3)
+    short_out = json.loads(capsys.readouterr().out)
+    short, leg_ratio = short_out["step_m"], short_out["step_m"]["leg_length"] / out["step_m"]["leg_length"]
+    assert short["max"] / out["step_m"]["max"] == pytest.approx(leg_ratio, rel=1e-3)
+    assert short_out["swing_s"] / out["swing_s"] == pytest.approx(leg_ratio**0.5, abs=2e-3)  # to the millisecond
 
 
 @pytest.mark.parametrize("argv, says", [

@@ -141,7 +141,7 @@ def test_reset_starts_a_new_cycle():
 def planner(est: Estimate, m: Measurements, params=P) -> GaitPlanner:
     """A planner standing at ``est``, with the configured gait or ``params``."""
     g = GaitPlanner(LEG, Dmp(load_swing(CFG)), params, factory.leg_loads(CFG), factory.balance_gains(CFG),
-                    ankle_height_m=CFG.legs.ankle_height_m, dt_s=DT, substeps=CFG.swing.substeps)
+                    ankle_height_m=CFG.legs.ankle_height_m, swing_s=factory.swing_duration_s(CFG), dt_s=DT, substeps=CFG.swing.substeps)
     g.stand_here(est, m)
     return g
 

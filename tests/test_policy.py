@@ -336,7 +336,7 @@ def test_a_step_bounds_object_is_what_the_policy_checks_against():
         StepPolicy(narrow, fixed_m=0.12)
 
 
-def test_the_step_bounds_scale_with_the_leg_length():
+def test_the_step_bounds_and_the_swing_duration_scale_with_the_leg_length():
     legs = BASE.controller.legs
     tall = dataclasses.replace(BASE.controller, legs=dataclasses.replace(
         legs, thigh_m=2 * legs.thigh_m, shank_m=2 * legs.shank_m, ankle_height_m=2 * legs.ankle_height_m))
@@ -344,3 +344,6 @@ def test_the_step_bounds_scale_with_the_leg_length():
     for name in ("init_m", "min_m", "max_m"):
         assert getattr(twice, name) == pytest.approx(2 * getattr(ref, name), abs=1e-4)
     assert (ref.init_m, ref.min_m, ref.max_m) == (0.15, 0.06, 0.25)  # the reference patient's, to 0.1 mm
+    # the swing's duration at the same Froude number: sqrt(2) times as long
+    assert factory.swing_duration_s(tall) == pytest.approx(math.sqrt(2) * factory.swing_duration_s(BASE.controller), abs=1e-3)
+    assert factory.swing_duration_s(BASE.controller) == 1.2

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from config import default_config_path, load_config
+from controller import factory
 from controller.dmp import Dmp
 from controller.swing import SwingWeightsError, fit_swing, load_swing, save_swing
 
@@ -37,8 +38,9 @@ def test_stale_or_broken_weights_are_refused_with_the_fix(tmp_path):
 
 def test_the_cached_swing_lands_at_the_goal():
     dmp = Dmp(load_swing(CFG))
-    dmp.reset(x0=np.zeros(2), goal=np.array([0.12, 0.0]), tau_s=CFG.swing.duration_s)
-    _, xz = dmp.rollout(0.02, 1.5 * CFG.swing.duration_s, substeps=CFG.swing.substeps)
+    tau = factory.swing_duration_s(CFG)
+    dmp.reset(x0=np.zeros(2), goal=np.array([0.12, 0.0]), tau_s=tau)
+    _, xz = dmp.rollout(0.02, 1.5 * tau, substeps=CFG.swing.substeps)
     assert xz[-1] == pytest.approx([0.12, 0.0], abs=0.002)
     assert xz[:, 1].max() == pytest.approx(CFG.swing.clearance_m, abs=0.01)
 
@@ -53,8 +55,6 @@ def test_cli_fit_writes_the_file(tmp_path, capsys):
 
 
 def test_factory_builds_the_core_from_the_configuration():
-    from controller import factory
-
     learner = factory.learner(CFG, np.random.default_rng(0))
     assert learner.theta.tolist() == [CFG.learning.initial_alpha, CFG.learning.initial_xhat]
     assert factory.pi2_params(CFG).noise_std == (CFG.learning.noise_alpha, CFG.learning.noise_xhat)

@@ -43,6 +43,7 @@ def _per_call_us(fn: Callable[[], None], calls: int, repeats: int) -> dict[str, 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     from controller.dmp import Dmp, reference_rollout
+    from controller.factory import swing_duration_s
     from controller.kinematics import Leg, forward, inverse
     from controller.pi2 import pi2_update
     from controller.swing import load_swing
@@ -53,7 +54,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if cfg is None:
         raise ConfigError("section required by the algorithm benchmark", key="controller")
     weights = load_swing(cfg)
-    tau, dt, substeps = cfg.swing.duration_s, 0.02, cfg.swing.substeps
+    tau, dt, substeps = swing_duration_s(cfg), 0.02, cfg.swing.substeps
     ticks_per_swing = int(math.ceil(tau / dt))
     dmp = Dmp(weights)
     goal = np.array([0.15, 0.0])

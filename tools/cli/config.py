@@ -48,29 +48,30 @@ def run_check(args: argparse.Namespace) -> int:
     result = {"file": str(args.file), "valid": True, "schema_version": SCHEMA_VERSION, "hash": config_hash(cfg),
               "bus": f"{cfg.bus.interface}:{cfg.bus.channel}", "sections": sections}
     if cfg.controller is not None:
-        result["step_m"] = _step_metres(cfg.controller)
+        result["step_m"], result["swing_s"] = _scaled(cfg.controller)
     if args.json:
         print_json(result)
     else:
         present = ", ".join(name for name, there in sections.items() if there) or "none"
         print(f"{args.file}: valid (schema {SCHEMA_VERSION}, bus {result['bus']}; sections: {present}; hash {result['hash'][:12]})")
         if "step_m" in result:
-            print(_step_line(result["step_m"]))
+            print(_step_line(result["step_m"], result["swing_s"]))
     return 0
 
 
-def _step_metres(controller) -> dict[str, float]:
-    """controller.step's fractions in metres for this configuration's leg length."""
-    from controller.factory import step_bounds
+def _scaled(controller) -> tuple[dict[str, float], float]:
+    """controller.step's fractions in metres and the swing's duration in seconds, for this
+    configuration's leg length."""
+    from controller.factory import step_bounds, swing_duration_s
 
     b = step_bounds(controller)
-    return {"leg_length": round(controller.legs.length_m, 4), "init": round(b.init_m, 4), "min": round(b.min_m, 4),
-            "max": round(b.max_m, 4)}
+    return ({"leg_length": round(controller.legs.length_m, 4), "init": round(b.init_m, 4), "min": round(b.min_m, 4),
+             "max": round(b.max_m, 4)}, swing_duration_s(controller))
 
 
-def _step_line(m: dict[str, float]) -> str:
+def _step_line(m: dict[str, float], swing_s: float) -> str:
     return (f"controller.step for a leg of {m['leg_length']:.3f} m: g_init {m['init']:.3f} m, "
-            f"steps {m['min']:.3f}-{m['max']:.3f} m")
+            f"steps {m['min']:.3f}-{m['max']:.3f} m; swings of {swing_s:.3f} s")
 
 
 #: the patient's options, for errors in their terms (the keys as tools.population names them)
@@ -103,14 +104,15 @@ def run_body(args: argparse.Namespace) -> int:
         _, section, name = key.split(".")
         value = controller[section][name]
         nested["controller"][section][name] = [round(v, 4) for v in value] if isinstance(value, list) else round(value, 4)
-    step = _step_metres(patient.controller)
+    step, swing_s = _scaled(patient.controller)
     if args.json:
-        print_json({"mass_kg": args.mass, "height_m": args.height, "stick_length_m": round(stick_m, 4), "step_m": step, **nested})
+        print_json({"mass_kg": args.mass, "height_m": args.height, "stick_length_m": round(stick_m, 4), "step_m": step,
+                    "swing_s": swing_s, **nested})
         return 0
     print(f"# controller.legs and controller.body for a patient of {args.mass:g} kg and {args.height:g} m with sticks of\n"
           f"# {stick_m:.3f} m, estimated by `aider-exo config body` (Winter's tables). Replace every value you have\n"
           "# measured, above all the exoskeleton's thigh and shank as adjusted; then `aider-exo config check FILE`.\n"
-          f"# {_step_line(step)} (its fractions of the leg length).")
+          f"# {_step_line(step, swing_s)} (scaled with the leg length).")
     class Dumper(yaml.SafeDumper):  # blocks for the sections, [x, y, z] for the vectors
         pass
 
