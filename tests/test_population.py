@@ -231,3 +231,35 @@ def test_a_walk_that_raises_ends_only_its_own_run_and_is_reported_with_its_seed(
     assert out["bad"] == RunFailed("bad", "fixed 0.14 m, seed 13", "pybullet said no")
     with pytest.raises(RuntimeError, match="pybullet said no"):  # without keep_going: the experiment ends
         drive(Pool(), {"good": batch(good), "bad": batch(bad)})
+
+
+def _gait(name, cycles_done, force, cycles=10):
+    """A gait's comparison walks: one per entry of ``cycles_done`` (fewer than ``cycles``: a fall)."""
+    from tools.experiment.compare import ADAPTIVE, GaitStats
+
+    walks = [{"cycles_completed": c, "mean_stick_force_n": force, "mean_arm_torque_nm": 50.0, "step_lengths_m": [0.12],
+              "fell": c < cycles, "end": "walked" if c == cycles else "backward fall", "job": {"seed": i}}
+             for i, c in enumerate(cycles_done)]
+    return GaitStats(name, (-0.3, 0.6) if name == ADAPTIVE else None, None if name == ADAPTIVE else float(name), walks)
+
+
+@pytest.mark.parametrize("adaptive, fixed, walks_every, below", [
+    # walks every walk, below the cheapest fall-free length (0.12 m at 300 N; 0.20 m falls)
+    ([10, 10], {"0.10": ([10, 10], 320.0), "0.12": ([10, 10], 300.0), "0.20": ([3, 10], 200.0)}, True, True),
+    # one walk falls; above a fall-free length
+    ([10, 4], {"0.10": ([10, 10], 250.0)}, False, False),
+    # no fixed length is fall-free: below them all by definition
+    ([10, 10], {"0.10": ([2, 10], 250.0)}, True, True),
+])
+def test_a_patients_summary_says_whether_its_learned_gait_walks_every_walk_below_every_fall_free_length(adaptive, fixed, walks_every, below):
+    from tools.experiment.compare import ADAPTIVE
+    from tools.experiment.learn import LearningRun, Update
+    from tools.experiment.population import PatientOutcome
+
+    run = LearningRun(start="A", seed=0, theta0=(-1.0, 0.6))
+    run.updates = [Update(index=0, theta=(-0.3, 0.6), evaluation_theta=(-0.3, 0.6), evaluation_cost=1500.0, evaluation_cycles=10,
+                          evaluation_end="walked")]
+    gaits = [_gait(ADAPTIVE, adaptive, 280.0)] + [_gait(name, done, force) for name, (done, force) in fixed.items()]
+    patient, _ = load_patient(population.PATIENTS_DIR / "reference.yaml", BASE)
+    s = PatientOutcome(patient, run, (-0.3, 0.6), gaits).summary(10)
+    assert (s["adaptive_walks_every_walk"], s["adaptive_below_fall_free_fixed"]) == (walks_every, below)

@@ -94,6 +94,10 @@ class PatientOutcome:
             # beat: less stick force than the best fixed length that never fell, falling no more often
             "adaptive_beats_best_fixed": bool(best is not None and force is not None and force < best["stick_force_mean_n"]
                                               and adaptive["falls"] <= best["falls"]),
+            # every comparison walk of the learned gait walked every cycle asked
+            "adaptive_walks_every_walk": adaptive["walks"] > 0 and adaptive["stable_cycles_min"] == cycles,
+            # its stick force below every fixed length that never fell (below the least of them), or none never fell
+            "adaptive_below_fall_free_fixed": force is not None and (best is None or force < best["stick_force_mean_n"]),
             "falls_by_gait": {g["gait"]: g["falls"] for g in gaits},
             "above_comfort_pct": _above_comfort(adaptive, self.patient),
             "learning": self.learning.as_dict(),

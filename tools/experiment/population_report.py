@@ -35,6 +35,8 @@ def summary(res: PopulationResults) -> dict[str, Any]:
         "failed": [{"patient": f.name, "walk": f.walk, "error": f.error} for f in res.failed],
         "distribution": {
             "adaptive_beats_best_fixed": sum(beat),
+            "adaptive_walks_every_walk": sum(p["adaptive_walks_every_walk"] for p in patients),
+            "adaptive_below_fall_free_fixed": sum(p["adaptive_below_fall_free_fixed"] for p in patients),
             "no_fixed_length_without_falls": sum(p["best_fixed"] is None for p in patients),
             "stick_force_reduction_pct": _quartiles(reductions),
             "updates_to_converge": _quartiles([p["updates_to_converge"] for p in patients if p["updates_to_converge"] is not None]),
@@ -81,6 +83,7 @@ def _patient_row(p: dict[str, Any]) -> dict[str, Any]:
         "adaptive_stick_force_n": p["adaptive"]["stick_force_mean_n"], "adaptive_falls": p["adaptive"]["falls"],
         "best_fixed": p["best_fixed"], "best_fixed_stick_force_n": p["best_fixed_stick_force_n"],
         "stick_force_reduction_pct": p["stick_force_reduction_pct"], "adaptive_beats_best_fixed": p["adaptive_beats_best_fixed"],
+        "adaptive_walks_every_walk": p["adaptive_walks_every_walk"], "adaptive_below_fall_free_fixed": p["adaptive_below_fall_free_fixed"],
         "comfortable_stick_force_n": who["comfortable_stick_force_n"], "above_comfort_pct": p["above_comfort_pct"],
     }
 
@@ -139,6 +142,9 @@ def report(s: dict[str, Any]) -> str:
         f"* The learned gait beat the best fixed step length that never fell (less stick force, no more falls) "
         f"for **{d['adaptive_beats_best_fixed']} of {len(s['by_patient'])}** patients; "
         f"{d['no_fixed_length_without_falls']} had no fixed length without a fall.",
+        f"* The learned gait walked {s['cycles_per_rollout']} of {s['cycles_per_rollout']} cycles in every comparison walk for "
+        f"**{d['adaptive_walks_every_walk']} of {len(s['by_patient'])}** patients; its stick force was below every fixed "
+        f"length that never fell (or none never fell) for **{d['adaptive_below_fall_free_fixed']} of {len(s['by_patient'])}**.",
         (f"* Stick force against that length, falls aside: median {red['median']} % less (quartiles {red['q1']} to {red['q3']} %, "
          f"{red['n']} patients)." if red["n"] else "* No patient had a fixed length to compare with."),
         "* Falls per gait, over all patients: " + ", ".join(
