@@ -40,6 +40,7 @@ from config.controller_schema import ControllerConfig
 from controller.dmp import Dmp, DmpWeights
 from controller.envelope import Envelope, JointBounds, JointCommand
 from controller.estimator import Estimate, Measurements, StateEstimator
+from controller.faults import Fault, FaultKind
 from controller.factory import balance_gains, leg as make_leg, leg_loads, step_bounds, swing_duration_s
 from controller.fsm import SWINGS, FsmInputs, GaitFsm
 from controller.gait import GaitPlanner
@@ -123,7 +124,7 @@ class ControllerCore:
         self._late_now: dict[int, int] = {}  # per-SYNC frame ID -> its age, of this tick's late frames
         self._shift = (0, 0)  # (a uniform lateness of every node's frames, for how many ticks in a row)
         self.started = False
-        self.pending_faults: list[str] = []
+        self.pending_faults: list[Fault] = []
         self.reset_requested = False
         self.measurements: Measurements | None = None  # of the last tick
         if swing_weights is None:
@@ -140,9 +141,9 @@ class ControllerCore:
         self._error_frame_tick = -(10**9)  # the last error frame's tick
         self._failed_sends: deque[int] = deque(maxlen=safety.send_failure_ticks)  # ticks with a failed send
         self._overruns: deque[int] = deque()  # ticks that followed an overrun
-        self._overrun_stop: str | None = None  # a protective stop asked by the loop's timing
+        self._overrun_stop: Fault | None = None  # a protective stop asked by the loop's timing
         self._unloaded = [0, 0]  # per stick: ticks in a row of this swing below stick_unloaded_n
-        self._slipped: str | None = None  # F19: a stick unloaded in this swing, a HOLD once it has landed
+        self._slipped: Fault | None = None  # F19: a stick unloaded in this swing, a HOLD once it has landed
         self._supply_low = [0, 0]  # F29: ticks in a row with the lowest supply below warn, below critical
         self._follow = _Following()
         self.walk_requested = False
@@ -231,15 +232,15 @@ class ControllerCore:
                     self._phase.pop(m, None)
             if state == NmtState.BOOT_UP:
                 if node.was_operational:
-                    self.pending_faults.append(f"NODE_REBOOTED({sender})")
+                    self.pending_faults.append(Fault(FaultKind.NODE_REBOOTED, sender))
             elif node.was_operational and state != NmtState.OPERATIONAL:
-                self.pending_faults.append(f"NODE_NOT_OPERATIONAL({sender})")
+                self.pending_faults.append(Fault(FaultKind.NODE_NOT_OPERATIONAL, sender))
             node.nmt, node.supply_v = state, v.supply_voltage_V
             if state == NmtState.OPERATIONAL and not node.was_operational:
                 node.operational_since = tick
         elif family == "EMCY":
             if v.error_register != 0:
-                self.pending_faults.append(f"EMCY {v.emcy_code:#06x} from {sender}")
+                self.pending_faults.append(Fault(FaultKind.EMCY, sender, f"{v.emcy_code:#06x}"))
         else:
             sent = tick - self._age(spec.frame_id, frame.counter, queued)
             if sent > self.latest.get(spec.name, (-(10**9),))[0]:
@@ -284,9 +285,9 @@ class ControllerCore:
         while self._overruns[0] <= tick - s.overrun_window_ticks:
             self._overruns.popleft()
         if skipped > s.overrun_max_ticks:
-            self._overrun_stop = f"OVERRUN({skipped} ticks skipped)"
+            self._overrun_stop = Fault(FaultKind.OVERRUN, detail=f"{skipped} ticks skipped")
         elif len(self._overruns) >= s.overrun_limit:
-            self._overrun_stop = f"OVERRUN({len(self._overruns)} in {s.overrun_window_ticks} ticks)"
+            self._overrun_stop = Fault(FaultKind.OVERRUN, detail=f"{len(self._overruns)} in {s.overrun_window_ticks} ticks")
 
     def _check_following(self, m: Measurements | None, fresh: bool) -> None:
         """F14: while the joints track, an encoder stuck while its joint moves: its reading stays
@@ -315,9 +316,9 @@ class ControllerCore:
             elif gap - f.gap[j] >= s.stuck_motion_rad:
                 f.away[j] += 1
                 if f.away[j] >= s.stuck_ticks:
-                    self.pending_faults.append(f"ENCODER_STUCK({self.node_names[j]})")
+                    self.pending_faults.append(Fault(FaultKind.ENCODER_STUCK, self.node_names[j]))
 
-    def _check_sticks(self, before: GaitState, m: Measurements | None, fresh: bool) -> str | None:
+    def _check_sticks(self, before: GaitState, m: Measurements | None, fresh: bool) -> Fault | None:
         """F19: a stick that carries less than ``stick_unloaded_n`` for ``stick_unloaded_ticks``
         ticks in a row of a swing has slipped or been lifted while the patient needs it. The swing
         goes on to its landing (stopping the legs mid-swing would drop the patient on one leg);
@@ -329,14 +330,14 @@ class ControllerCore:
                 for i, force in enumerate(m.stick_force_n.tolist()):
                     self._unloaded[i] = self._unloaded[i] + 1 if force < s.stick_unloaded_n else 0
                     if self._unloaded[i] == s.stick_unloaded_ticks and self._slipped is None:
-                        self._slipped = (f"STICK_UNLOADED({('left', 'right')[i]} stick below {s.stick_unloaded_n:g} N "
-                                         f"for {s.stick_unloaded_ticks} ticks in the swing)")
+                        self._slipped = Fault(FaultKind.STICK_UNLOADED, f"{('left', 'right')[i]} stick",
+                                              f"below {s.stick_unloaded_n:g} N for {s.stick_unloaded_ticks} ticks in the swing")
             return None
         self._unloaded = [0, 0]
         slipped, self._slipped = self._slipped, None
         return slipped if before in (GaitState.DOUBLE_SUPPORT, GaitState.STOP) else None  # landed (a HOLD or FAULT has stopped it anyway)
 
-    def _check_supply(self, state: GaitState, events: list[str]) -> str | None:
+    def _check_supply(self, state: GaitState, events: list[str]) -> Fault | None:
         """F29: the lowest supply voltage of the nodes' heartbeats below ``supply_warn_v`` for
         ``supply_warn_ticks`` ticks is a warning (an event; nothing else changes); below
         ``supply_critical_v`` for ``supply_critical_ticks`` no step starts any more: in double
@@ -350,7 +351,7 @@ class ControllerCore:
         if self._supply_low[0] == s.supply_warn_ticks:
             events.append(f"SUPPLY_LOW({low:.2f} V below {s.supply_warn_v:g} V for {s.supply_warn_ticks} ticks): warning")
         if self._supply_low[1] >= s.supply_critical_ticks and state == GaitState.DOUBLE_SUPPORT:
-            return f"SUPPLY_CRITICAL({low:.2f} V below {s.supply_critical_v:g} V for {self._supply_low[1]} ticks)"
+            return Fault(FaultKind.SUPPLY_CRITICAL, detail=f"{low:.2f} V below {s.supply_critical_v:g} V for {self._supply_low[1]} ticks")
         return None
 
     def _supervise_bus(self, tick: int) -> None:
@@ -360,11 +361,11 @@ class ControllerCore:
         while window and window[0][0] <= tick - s.integrity_window_ticks:
             window.popleft()
         if len(window) >= s.integrity_errors:
-            self.pending_faults.append(f"FRAME_INTEGRITY({len(window)} in {s.integrity_window_ticks} ticks: {window[-1][1]})")
+            self.pending_faults.append(Fault(FaultKind.FRAME_INTEGRITY, detail=f"{len(window)} in {s.integrity_window_ticks} ticks: {window[-1][1]}"))
             window.clear()
         failed = self._failed_sends
         if len(failed) == failed.maxlen and failed[0] == tick - failed.maxlen:
-            self.pending_faults.append(f"BUS_SEND_FAILED({failed.maxlen} ticks)")
+            self.pending_faults.append(Fault(FaultKind.BUS_SEND_FAILED, detail=f"{failed.maxlen} ticks"))
             failed.clear()
 
     def request_walk(self) -> None:
@@ -415,18 +416,18 @@ class ControllerCore:
         ages = [tick - n.status_tick if n.status is not None else 10**9 for n in self.nodes.values()]
         for name, node in self.nodes.items():
             if node.was_operational and tick - max(node.status_tick, node.operational_since) >= self.lost_ticks:
-                self.pending_faults.append(f"NODE_LOST({name})")
+                self.pending_faults.append(Fault(FaultKind.NODE_LOST, name))
             if node.status is not None and node.status_tick == tick:
                 if node.status.drive_state == DriveState.FAULT:
-                    self.pending_faults.append(f"DRIVE_FAULT({name}: error {node.status.error_code})")
+                    self.pending_faults.append(Fault(FaultKind.DRIVE_FAULT, name, f"error {node.status.error_code}"))
                 lo, hi = self._measured_range[name]
                 if not lo <= node.status.position_rad <= hi:  # F16: a joint beyond its range is a fault
-                    self.pending_faults.append(f"JOINT_LIMIT({name}: {node.status.position_rad:.3f} rad)")
+                    self.pending_faults.append(Fault(FaultKind.JOINT_LIMIT, name, f"{node.status.position_rad:.3f} rad"))
         latest = self.latest
         for name, sender in self._sensor_sender.items():  # a sensor frame missing as long as a lost node's status
             node = self.nodes[sender]
             if node.was_operational and tick - max(latest.get(name, (-1,))[0], node.operational_since) >= self.lost_ticks:
-                self.pending_faults.append(f"SENSOR_LOST({name})")
+                self.pending_faults.append(Fault(FaultKind.SENSOR_LOST, name))
             elif name in latest:
                 ages.append(tick - latest[name][0])
         self._supervise_bus(tick)
@@ -490,7 +491,7 @@ class ControllerCore:
         tilt = max(abs(float(m.trunk_rpy_rad[0])), abs(float(m.trunk_rpy_rad[1]))) if m is not None else 0.0
         self._tilted_ticks = self._tilted_ticks + 1 if tilt > self.fall_tilt_rad else 0
         if self._tilted_ticks >= self.safety.fall_ticks:
-            self.pending_faults.append(f"FALL(trunk tilt {tilt:.2f} rad)")
+            self.pending_faults.append(Fault(FaultKind.FALL, detail=f"trunk tilt {tilt:.2f} rad"))
 
     def _gait_transition(
         self, tick: int, before: GaitState, state: GaitState, est: Estimate | None, m: Measurements | None,
@@ -499,8 +500,8 @@ class ControllerCore:
         """Start walking, start a swing, close a step; returns the step that ended this tick."""
         finished = None
         if state != before and state in (GaitState.FAULT, GaitState.HOLD, GaitState.STOP):
-            cause = self.fsm.transitions[-1].cause
-            if state == GaitState.FAULT and cause.startswith("FALL"):
+            fault = self.fsm.transitions[-1].fault
+            if fault is not None and fault.kind is FaultKind.FALL:
                 self.policy.fell()  # the roll-out ends with its terminal cost
             else:
                 self.policy.abandon()
@@ -587,7 +588,7 @@ class ControllerCore:
                 cmd = hold
             checked = self.envelope.check(joint, cmd, previous[i])
             if checked.violation is not None:
-                self.pending_faults.append(f"ENVELOPE({checked.violation})")  # latches FAULT next tick
+                self.pending_faults.append(Fault(FaultKind.ENVELOPE, detail=checked.violation))  # latches FAULT next tick
             c = checked.command
             sent.append(c.position_rad)
             frames.append((self._command_of[name], (int(c.mode), c.position_rad, c.velocity_rad_s, c.torque_nm,

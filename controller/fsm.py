@@ -24,9 +24,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from controller.faults import Fault, FaultKind
 from protocol.enums import GaitState
 
 SWINGS = (GaitState.SWING_LEFT, GaitState.SWING_RIGHT)
+#: the cause of leaving HOLD or FAULT
+OPERATOR_RESET = "operator reset"
 
 
 @dataclass(frozen=True)
@@ -39,9 +42,9 @@ class FsmInputs:
     sticks_loaded: bool = False  # both stick forces above the loading threshold
     sticks_ahead: bool = False  # both tips placed ahead of the stance foot
     swing_done: bool = False  # the swing's trajectory has ended and the swing foot carries load
-    fault: str | None = None  # cause of a fault detected this tick (latches FAULT)
-    other_faults: tuple[str, ...] = ()  # further causes detected in the same tick (kept with the first)
-    protective_stop: str | None = None  # cause of a protective stop this tick (HOLD)
+    fault: Fault | None = None  # a fault detected this tick (latches FAULT)
+    other_faults: tuple[Fault, ...] = ()  # further faults detected in the same tick (kept with the first)
+    protective_stop: Fault | None = None  # the cause of a protective stop this tick (HOLD)
     start: bool = False  # operator: walk
     stop: bool = False  # operator: stop walking
     reset: bool = False  # operator: reset HOLD or FAULT
@@ -49,12 +52,17 @@ class FsmInputs:
 
 @dataclass(frozen=True)
 class Transition:
-    """One state change, for the event log (I6: one record per entry into HOLD or FAULT)."""
+    """One state change, for the event log (I6: one record per entry into HOLD or FAULT): its cause
+    is the :class:`Fault` of an entry into HOLD or FAULT, else what the gait did (text)."""
 
     tick: int
     source: GaitState
     target: GaitState
-    cause: str
+    cause: Fault | str
+
+    @property
+    def fault(self) -> Fault | None:
+        return self.cause if isinstance(self.cause, Fault) else None
 
 
 @dataclass
@@ -67,9 +75,9 @@ class GaitFsm:
     transitions: list[Transition] = field(default_factory=list)
     _healthy_ticks: int = 0
     _stop_pending: bool = False
-    _fault_causes: list[str] = field(default_factory=list)
+    _fault_causes: list[Fault] = field(default_factory=list)
 
-    def _go(self, tick: int, target: GaitState, cause: str) -> None:
+    def _go(self, tick: int, target: GaitState, cause: Fault | str) -> None:
         if target != self.state:
             self.transitions.append(Transition(tick, self.state, target, cause))
             self.state = target
@@ -91,7 +99,7 @@ class GaitFsm:
             return self.state
         if s == GaitState.FAULT:
             if i.reset and self._healthy_ticks >= self.reset_healthy_ticks and i.sticks_loaded:
-                self._go(tick, GaitState.STAND, "operator reset")
+                self._go(tick, GaitState.STAND, OPERATOR_RESET)
             return self.state
         if i.protective_stop is not None:
             self._stop_pending = False
@@ -99,11 +107,11 @@ class GaitFsm:
             return self.state
         if s == GaitState.HOLD:
             if i.reset and i.nodes_healthy:
-                self._go(tick, GaitState.STAND, "operator reset")
+                self._go(tick, GaitState.STAND, OPERATOR_RESET)
             return self.state
         if not i.nodes_healthy and s != GaitState.INIT:
             # Unhealthy without a fault (yet): a protective stop; the fault detectors escalate.
-            self._go(tick, GaitState.HOLD, "nodes not healthy")
+            self._go(tick, GaitState.HOLD, Fault(FaultKind.NODES_UNHEALTHY))
             return self.state
 
         if s == GaitState.INIT:
@@ -134,7 +142,7 @@ class GaitFsm:
         return self._healthy_ticks
 
     @property
-    def fault_causes(self) -> tuple[str, ...]:
+    def fault_causes(self) -> tuple[Fault, ...]:
         """Every cause seen since FAULT latched (the first one is the one announced)."""
         return tuple(self._fault_causes) if self.state == GaitState.FAULT else ()
 

@@ -7,11 +7,13 @@ from dataclasses import replace
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from controller.faults import Fault, FaultKind
 from controller.fsm import SWINGS, FsmInputs, GaitFsm
 from protocol.enums import GaitState as G
 
 HEALTHY = FsmInputs(nodes_operational=True, nodes_healthy=True, data_fresh=True)
 READY = replace(HEALTHY, sticks_loaded=True, sticks_ahead=True)
+OVERRUN = Fault(FaultKind.OVERRUN, detail="3 in 50 ticks")
 
 
 def run(fsm: GaitFsm, *inputs: FsmInputs, start: int = 0) -> list[G]:
@@ -44,10 +46,12 @@ def test_a_stop_in_swing_waits_for_the_foot_to_land():
 
 def test_fault_latches_from_any_state_and_needs_a_reset_with_its_preconditions():
     fsm = GaitFsm(state=G.SWING_LEFT, reset_healthy_ticks=25)
-    assert fsm.step(10, replace(READY, fault="NODE_LOST(2)")) == G.FAULT
-    fsm.step(11, replace(READY, fault="CRC errors"))
-    assert fsm.fault_causes == ("NODE_LOST(2)", "CRC errors")
-    assert [t.cause for t in fsm.transitions] == ["NODE_LOST(2)"]  # one record
+    lost, crc = Fault(FaultKind.NODE_LOST, "RIGHT_HIP"), Fault(FaultKind.FRAME_INTEGRITY, detail="2 in 5 ticks: CRC")
+    assert fsm.step(10, replace(READY, fault=lost)) == G.FAULT
+    fsm.step(11, replace(READY, fault=crc))
+    assert fsm.fault_causes == (lost, crc)
+    assert [t.cause for t in fsm.transitions] == [lost]  # one record
+    assert str(lost) == "NODE_LOST(RIGHT_HIP)" and str(crc) == "FRAME_INTEGRITY(2 in 5 ticks: CRC)"
     # Healthy again, but a reset needs 25 healthy ticks and both sticks loaded.
     states = run(fsm, *[READY] * 10, replace(READY, reset=True), start=12)
     assert set(states) == {G.FAULT}
@@ -58,11 +62,11 @@ def test_fault_latches_from_any_state_and_needs_a_reset_with_its_preconditions()
 
 def test_protective_stop_holds_until_reset_and_a_fault_overrides_it():
     fsm = GaitFsm(state=G.DOUBLE_SUPPORT)
-    assert fsm.step(0, replace(READY, protective_stop="trunk tilt")) == G.HOLD
+    assert fsm.step(0, replace(READY, protective_stop=OVERRUN)) == G.HOLD
     assert fsm.step(1, READY) == G.HOLD
     assert fsm.step(2, replace(READY, reset=True)) == G.STAND
     fsm = GaitFsm(state=G.STAND)
-    assert fsm.step(0, replace(READY, protective_stop="tilt", fault="NODE_LOST(1)")) == G.FAULT
+    assert fsm.step(0, replace(READY, protective_stop=OVERRUN, fault=Fault(FaultKind.NODE_LOST, "LEFT_HIP"))) == G.FAULT
 
 
 def test_unhealthy_nodes_stop_the_gait():
@@ -78,8 +82,8 @@ inputs = st.builds(
     sticks_loaded=st.booleans(),
     sticks_ahead=st.booleans(),
     swing_done=st.booleans(),
-    fault=st.sampled_from([None] * 8 + ["NODE_LOST(3)", "CRC"]),
-    protective_stop=st.sampled_from([None] * 8 + ["tilt"]),
+    fault=st.sampled_from([None] * 8 + [Fault(FaultKind.NODE_LOST, "RIGHT_KNEE"), Fault(FaultKind.FALL, detail="trunk tilt 0.6 rad")]),
+    protective_stop=st.sampled_from([None] * 8 + [OVERRUN]),
     start=st.booleans(),
     stop=st.booleans(),
     reset=st.booleans(),
@@ -105,6 +109,9 @@ def test_invariants_hold_for_any_input_sequence(sequence, initial):
         if after != before:  # I6: one record per change, naming it
             assert len(fsm.transitions) == n_records + 1
             assert (fsm.transitions[-1].source, fsm.transitions[-1].target) == (before, after)
+            if after in (G.HOLD, G.FAULT):  # its cause a fault of the kind that reacts so
+                fault = fsm.transitions[-1].fault
+                assert fault is not None and fault.kind.reaction.value == after.name
         else:
             assert len(fsm.transitions) == n_records
         assert fsm.moving == (after in (G.DOUBLE_SUPPORT, *SWINGS))

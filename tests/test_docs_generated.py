@@ -1,4 +1,4 @@
-"""The generated blocks of docs/FIRMWARE.md and docs/TRACE.md (``tools/docgen.py``, ``make docs``)
+"""The generated blocks of docs/FIRMWARE.md, docs/TRACE.md and docs/FAULTS.md (``tools/docgen.py``, ``make docs``)
 are what the code gives today, and what they show is right by independent references: the CRC
 vectors against AUTOSAR's published values, the C code of FIRMWARE.md compiled and run on them,
 the example frames decoded by cantools."""
@@ -18,6 +18,7 @@ from tools import docgen
 
 FIRMWARE = ROOT / "docs" / "FIRMWARE.md"
 TRACE = ROOT / "docs" / "TRACE.md"
+FAULTS = ROOT / "docs" / "FAULTS.md"
 STALE = "stale: run `make docs` (python -m tools.docgen)"
 
 
@@ -32,6 +33,10 @@ def _block(path, name: str) -> str:
 @pytest.mark.parametrize("name", ["crc-vectors", "messages", "frame-examples", "node-ids", "node-timing"])
 def test_firmware_md_blocks_are_what_the_code_gives(name):
     assert _block(FIRMWARE, name) == docgen.render(name), f"docs/FIRMWARE.md {name}: {STALE}"
+
+
+def test_faults_md_lists_every_fault_kind_of_the_controller():
+    assert _block(FAULTS, "fault-kinds") == docgen.render("fault-kinds"), f"docs/FAULTS.md fault-kinds: {STALE}"
 
 
 def test_trace_md_bench_figures_are_docs_perf_trace_json():

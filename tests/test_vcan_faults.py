@@ -51,7 +51,7 @@ from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver
 from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
 from tests.conftest import ROOT
-from tests.test_vcan_controller import AIDER, STALL_STOPS, _decode_capture, _recorded, _transitions
+from tests.test_vcan_controller import AIDER, _decode_capture, _recorded, _transitions, stall_can_explain
 from tests.test_vcan_trace import PROBE_ID, candump
 
 pytestmark = pytest.mark.vcan
@@ -268,7 +268,7 @@ def _mid_swing(vcan0: str, tmp: Path, name: str, nodes_extra: tuple[str, ...] = 
                     _wait(tail, _Count({SYNC_ID}, 30), "0.6 s into the swing", (nodes, ctl))
                 except _NotWalking as e:
                     why = _why(ctl)
-                    stalls += bool(why) and all(w.split(": ", 2)[-1].startswith(STALL_STOPS) for w in why)
+                    stalls += bool(why) and all(stall_can_explain(w.split(": ", 2)[-1]) for w in why)
                     reasons.append(f"attempt {attempt + 1}: {e}: {why}")
                     _reap(nodes, ctl)
                     continue
@@ -579,7 +579,7 @@ def test_restarted_controller_leaves_fault_only_on_the_operators_reset_and_does_
     # and it stays (the one reset is spent); nothing else may follow.
     later = transitions[2:]
     end = later[0][0] if later else s["ticks"]
-    assert all(t[2] in ("HOLD", "FAULT") and t[3].startswith((*STALL_STOPS, "nodes not healthy")) for t in later), later
+    assert all(t[2] in ("HOLD", "FAULT") and stall_can_explain(t[3]) for t in later), later
     assert end - fsm_reset >= 20, later
     assert s["final_state"] == (later[-1][2] if later else "STAND")
 

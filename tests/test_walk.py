@@ -226,12 +226,13 @@ def test_a_walk_that_the_controller_holds_ends_there_with_the_cause():
     slipped = {"kind": "sensor_value", "node": "LEFT_HIP", "start_tick": 226, "message": "STICK_LEFT", "signal": "force_N", "value": 0.0}
     cfg = with_overrides(BASE, {"nodes.faults": {"slip": slipped}})
     outcome = walk(cfg, cycles=2, seed=0, mode="sagittal")
-    assert outcome.final_state == "HOLD" and outcome.hold.startswith("STICK_UNLOADED(left stick")
+    unloaded = "STICK_UNLOADED(left stick: below 2 N for 10 ticks in the swing)"
+    assert outcome.final_state == "HOLD" and outcome.hold == unloaded
     assert not outcome.stalled and not outcome.fell and outcome.fault is None
     assert len(outcome.landed) == 1 and outcome.ticks == outcome.landed[0].end_tick + 2  # the tick after the landing
     assert outcome.summary()["hold"] == outcome.hold
     result = run_walk(cfg, WalkJob(seed=0, cycles=2, fixed_m=0.12))
-    assert result["end"].startswith("hold STICK_UNLOADED(left stick") and result["fell"] and not result["complete"]
+    assert result["end"] == f"hold {unloaded}" and result["fell"] and not result["complete"]
 
 
 def test_a_walk_without_a_landing_for_stall_s_is_a_stall():

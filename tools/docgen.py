@@ -8,6 +8,7 @@ The prose around a block is written by hand and quotes no figure of its own.
 * docs/FIRMWARE.md: CRC-8 test vectors, every message's Data ID, CRC seed and an example frame,
   a worked example of every frame kind, the node IDs, the timing a node board must keep; encoded
   and decoded by the project's own codec (:mod:`protocol.codec`), never typed by hand.
+* docs/FAULTS.md: the controller's fault kinds (:class:`controller.faults.FaultKind`).
 * docs/TRACE.md: the ``trace record --walk`` / ``trace resim`` transcript, run here through the
   real command line, and the figures of the last ``make perf`` (docs/perf/trace.json).
 """
@@ -285,6 +286,13 @@ def block_trace_bench(catalog: Catalog, codec: Codec) -> list[str]:
     ]
 
 
+def block_fault_kinds(catalog: Catalog, codec: Codec) -> list[str]:
+    from controller.faults import FaultKind
+
+    rows = [[f"`{k.name}`", k.row, k.reaction.value, "yes" if k.stall_can_explain else "no"] for k in FaultKind]
+    return _md_table(["kind", "row", "reaction", "a stall can explain it"], rows)
+
+
 BLOCKS: dict[str, Callable[[Catalog, Codec], list[str]]] = {
     "crc-vectors": block_crc_vectors,
     "messages": block_messages,
@@ -293,8 +301,9 @@ BLOCKS: dict[str, Callable[[Catalog, Codec], list[str]]] = {
     "node-timing": block_node_timing,
     "resim-example": block_resim_example,
     "trace-bench": block_trace_bench,
+    "fault-kinds": block_fault_kinds,
 }
-DOCUMENTS = (ROOT / "docs" / "FIRMWARE.md", ROOT / "docs" / "TRACE.md")
+DOCUMENTS = (ROOT / "docs" / "FIRMWARE.md", ROOT / "docs" / "TRACE.md", ROOT / "docs" / "FAULTS.md")
 
 
 def blocks_of(text: str, path: Path) -> list[tuple[str, int, int]]:

@@ -24,6 +24,7 @@ import numpy as np
 
 from config import Config, with_overrides
 from controller.core import ControllerCore, TickResult
+from controller.faults import FaultKind
 from controller.loop import LockstepLoop
 from controller.policy import StepPolicy, StepRecord
 from controller.telemetry import TelemetryLog
@@ -184,14 +185,15 @@ def drive(
             core.policy.fell()
             break
         if result.state == GaitState.FAULT:
-            outcome.fault = core.fsm.transitions[-1].cause
-            if outcome.fault.startswith("FALL"):
+            fault = core.fsm.transitions[-1].fault
+            outcome.fault = str(fault)
+            if fault.kind is FaultKind.FALL:
                 outcome.fell, outcome.fall_reason = True, outcome.fault
             break
         if result.state == GaitState.HOLD:
             # latched until an operator's reset, which an in-process walk has not: it ends here
             # (waiting out the stall time would only hide the cause)
-            outcome.hold = core.fsm.transitions[-1].cause
+            outcome.hold = str(core.fsm.transitions[-1].cause)
             break
         if len(outcome.landed) >= 2 * cycles:
             break

@@ -159,7 +159,8 @@ def run(args: argparse.Namespace) -> int:
         "mode": "lockstep" if args.lockstep else "realtime",
         "ticks": loop.report.ticks,
         "final_state": result.state.name if result else None,
-        "fault_causes": list(core.fsm.fault_causes),  # every cause seen while FAULT is latched (the first announced)
+        "fault_causes": [str(f) for f in core.fsm.fault_causes],  # every cause seen while FAULT is latched (the first announced)
+        "fault_kinds": [f.kind.name for f in core.fsm.fault_causes],
         "timeouts": loop.report.timeouts,
         "frames_sent": loop.report.frames_sent,
         "send_failures": loop.report.send_failures,

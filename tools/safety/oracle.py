@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import can
 
 from controller.core import SENSOR_MESSAGES, ControllerCore, TickResult
-from controller.fsm import SWINGS
+from controller.faults import Fault
+from controller.fsm import OPERATOR_RESET, SWINGS
 from protocol.codec import Codec, Decoded
 from protocol.enums import DriveState, GaitState, JointMode, NmtState
 
@@ -28,7 +29,7 @@ STOP_STATES = (GaitState.HOLD, GaitState.FAULT)
 class StopRecord:
     tick: int  # the tick the FSM entered it
     state: GaitState
-    cause: str
+    cause: Fault
     hold_on_bus_tick: int | None = None  # the first tick with four HOLD commands on the bus
 
 
@@ -147,7 +148,7 @@ class Oracle:
                 self._fail(k, f"I6 {len(records)} records of the entry into {t.target.name}")
             if t.target in STOP_STATES:
                 self.stops.append(StopRecord(k, t.target, t.cause))
-            if t.source == GaitState.FAULT and t.cause != "operator reset":
+            if t.source == GaitState.FAULT and t.cause != OPERATOR_RESET:
                 self._fail(k, f"I4 FAULT left without an operator reset ({t.cause})")
             if t.source == GaitState.FAULT and core.fsm.healthy_ticks < core.fsm.reset_healthy_ticks:
                 self._fail(k, f"I4 FAULT left after {core.fsm.healthy_ticks} healthy ticks")

@@ -195,7 +195,7 @@ def _episode(cfg: Config, seed: int, ticks: int, faults_per_min: float, reset_af
             if state in (GaitState.HOLD, GaitState.FAULT):
                 if before not in (GaitState.HOLD, GaitState.FAULT):
                     stopped_at = rig.tick
-                    report.stops[rig.core.fsm.transitions[-1].cause.split("(")[0]] += 1
+                    report.stops[rig.core.fsm.transitions[-1].fault.kind.name] += 1
                 elif stopped_at is not None and rig.tick - stopped_at >= reset_after and rig.tick % reset_after == 0:
                     rig.core.request_reset()  # the operator, after a while; the FSM decides
             elif before == GaitState.FAULT:
