@@ -45,7 +45,8 @@ from controller.factory import balance_gains, leg as make_leg, leg_loads, step_b
 from controller.fsm import SWINGS, FsmInputs, GaitFsm
 from controller.gait import GaitPlanner
 from controller.policy import StepPolicy, StepRecord
-from protocol.catalog import TICK_MS, Catalog, default_catalog
+from protocol.catalog import Catalog, default_catalog
+from protocol.clock import TICK_S
 from protocol.codec import Decoded, RejectReason, Rejection
 from protocol.enums import DriveState, GaitState, JointMode, NmtCommand, NmtState, PolicyMode
 
@@ -132,7 +133,7 @@ class ControllerCore:
 
             swing_weights = load_swing(cfg)
         self.gait = GaitPlanner(make_leg(cfg), Dmp(swing_weights), cfg.gait, leg_loads(cfg), balance_gains(cfg),
-                                ankle_height_m=cfg.legs.ankle_height_m, swing_s=swing_duration_s(cfg), dt_s=TICK_MS / 1000.0,
+                                ankle_height_m=cfg.legs.ankle_height_m, swing_s=swing_duration_s(cfg), dt_s=TICK_S,
                                 substeps=cfg.swing.substeps)
         self.policy = policy or StepPolicy(step_bounds(cfg), theta=(cfg.compensation.alpha, cfg.compensation.xhat_com))
         self.fall_tilt_rad = safety.fall_tilt_rad

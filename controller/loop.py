@@ -23,8 +23,7 @@ from controller.telemetry import TelemetryLog
 from controller.timing import TickStats
 from protocol.bus import send_of
 from protocol.busload import wire_time_ns
-from protocol.catalog import TICK_MS
-from protocol.clock import MAX_STALLS, STALL_NS, Clock, MonotonicClock, TickTimer
+from protocol.clock import MAX_STALLS, STALL_NS, TICK_NS, Clock, MonotonicClock, TickTimer
 from protocol.codec import Codec
 from protocol.e2e import Receiver, Transmitter
 from protocol.enums import JointMode, NmtState
@@ -59,7 +58,7 @@ class LockstepLoop:
         self.tx = Transmitter(self.codec)
         self.tick_timeout_s, self.boot_wait_s = tick_timeout_s, boot_wait_s
         self.max_frames = max_frames_per_tick  # per 20 ms read (1 Mbit/s carries at most about 180 frames in 20 ms)
-        self.tick_ns = TICK_MS * 1_000_000
+        self.tick_ns = TICK_NS
         self.pump = pump
         self.telemetry = telemetry
         self.clock = clock or MonotonicClock()

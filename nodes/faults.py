@@ -16,7 +16,8 @@ import numpy as np
 
 from config.loader import AiderError
 from config.nodes_schema import VALUE_FAULTS, FaultConfig
-from protocol.catalog import TICK_MS, Catalog, MessageSpec
+from protocol.catalog import Catalog, MessageSpec
+from protocol.clock import TICK_MS
 from protocol.codec import with_raw_value
 from protocol.errors import ProtocolError
 

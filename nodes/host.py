@@ -40,8 +40,8 @@ from config.loader import AiderError
 from nodes.faults import FaultInjector
 from nodes.firmware import ERR_CURRENT, ERR_GENERIC, DriveCommand, JointLimits, NodeFirmware
 from protocol.bus import send_of
-from protocol.catalog import TICK_MS, MessageSpec
-from protocol.clock import MAX_STALLS, STALL_NS, Clock, MonotonicClock
+from protocol.catalog import MessageSpec
+from protocol.clock import MAX_STALLS, STALL_NS, TICK_MS, TICK_NS, Clock, MonotonicClock
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver, Transmitter
 from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
@@ -52,7 +52,6 @@ from sim.sensors import Reading
 from sim.walk import Walker, initial_pose
 from sim.world import World
 
-TICK_NS = TICK_MS * 1_000_000
 RX_PER_TICK = 200  # real time: queued frames handled before a tick, at most (the controller's own bound)
 SYNC_PHASE_NS = TICK_NS // 2  # real time: the physics tick this long after a SYNC (see the module doc)
 SYNC_PULL = 8  # once locked, a SYNC corrects the phase by 1/8 of its error (a SYNC read late moves it little)

@@ -11,7 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from math import lcm
 
-from protocol.catalog import TICK_MS, Catalog, MessageSpec
+from protocol.catalog import Catalog, MessageSpec
+from protocol.clock import TICK_MS
 
 
 def frame_bits(dlc: int, *, extended: bool = False, worst_case: bool = True) -> int:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from protocol import crc as _crc
+from protocol.clock import TICK_MS
 from protocol.enums import check_enums
 from protocol.errors import ProtocolError
 
@@ -25,9 +26,6 @@ DBC_PATH = Path(__file__).with_name("aider.dbc")
 CRC_SIGNAL = "e2e_crc"
 COUNTER_SIGNAL = "e2e_counter"
 COUNTER_MODULO = 16
-
-#: The controller tick all cyclic messages are aligned to.
-TICK_MS = 20
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,11 @@ import time
 from dataclasses import dataclass
 from typing import Protocol
 
+#: The controller's tick: every cyclic message of the DBC is a multiple of it, every loop runs on it.
+TICK_MS = 20
+TICK_S = TICK_MS / 1000
+TICK_NS = TICK_MS * 1_000_000
+
 
 class Clock(Protocol):
     def now_ns(self) -> int:

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from config.sim_schema import GaitConfig, SimConfig
-from protocol.catalog import TICK_MS
+from protocol.clock import TICK_S
 from sim.kinematics import Kinematics
 from sim.model import build_body
 from sim.patient import OTHER, SIDES, Patient, Phase, StepPlan
@@ -29,7 +29,6 @@ from sim.world import StancePose, World
 
 __all__ = ["OTHER", "SIDES", "Phase", "StepRecord", "WalkResult", "Walker", "gait_settings", "initial_pose", "walk"]
 
-TICK_S = TICK_MS / 1000.0
 _ALLOWED_CONTACTS = frozenset({"foot_l", "foot_r", "forearm_l", "forearm_r"})
 _OFF_FLOOR_M = 0.005  # an unloaded foot whose ankle is this much higher than standing is off the floor
 

@@ -133,7 +133,7 @@ def _real_time_walk(cycles: int, channel: str):
     ``cycles`` gait cycles (or until a FAULT or a fall); returns (loop, core, states, fall, nodes' status)."""
     from controller.loop import RealtimeLoop
     from nodes.host import running_in_thread
-    from protocol.catalog import TICK_MS
+    from protocol.clock import TICK_MS
     from tools.pipeline import default_max_time_s
 
     cfg = with_overrides(BASE, {"bus.channel": channel, "sim.mode": "sagittal"})

@@ -71,3 +71,24 @@ def test_time_is_read_only_through_the_clock_module():
                 if call in text:
                     offenders.append(f"{path.relative_to(ROOT)}: {call}")
     assert not offenders
+
+
+def test_the_tick_is_defined_once_in_the_clock_module():
+    """protocol/clock.py names the tick (TICK_MS, TICK_S, TICK_NS); no other module defines one of
+    its own or writes the tick's seconds (0.02) as a literal beside a tick count."""
+    offenders = []
+    for folder in CODE_FOLDERS + ["tests"]:
+        for path in (ROOT / folder).rglob("*.py"):
+            if path == ROOT / "protocol" / "clock.py":
+                continue
+            tree = ast.parse(path.read_text(), filename=str(path))
+            for node in ast.walk(tree):
+                targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(node, ast.AnnAssign) else []
+                offenders += [f"{path.relative_to(ROOT)}:{node.lineno} defines {t.id}" for t in targets
+                              if isinstance(t, ast.Name) and t.id.startswith("TICK_")]
+                if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Mult):
+                    names = [ast.unparse(side) for side in (node.left, node.right)]
+                    if any(isinstance(side, ast.Constant) and side.value == 0.02 for side in (node.left, node.right)) \
+                            and any("tick" in n.lower() for n in names):
+                        offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} {ast.unparse(node)}")
+    assert not offenders, offenders

@@ -12,6 +12,7 @@ import threading
 
 import pytest
 
+from protocol.clock import TICK_S
 from protocol.codec import Codec
 from tools.cli import main
 from tools.trace.reader import ReadReport, read_frames
@@ -23,7 +24,7 @@ EPOCH = 1_796_600_000.0  # a wall clock in December 2026
 @pytest.fixture(scope="module")
 def lockstep(tmp_path_factory):
     path = tmp_path_factory.mktemp("rt") / "walk.log"
-    assert main(["trace", "record", str(path), "--walk", "1", "--max-time", str(TICKS * 0.02), "--seed", "2"]) == 0
+    assert main(["trace", "record", str(path), "--walk", "1", "--max-time", str(TICKS * TICK_S), "--seed", "2"]) == 0
     return path
 
 

@@ -9,6 +9,7 @@ import pytest
 
 from protocol.busload import mean_load_bits_per_s
 from protocol.catalog import default_catalog
+from protocol.clock import TICK_S
 from protocol.codec import Codec
 from tools.cli import main
 from tools.trace.decode import TraceDecoder
@@ -40,7 +41,7 @@ def test_a_clean_lockstep_trace():
     assert 2.0 < tick["sync_to_last_node_frame_ms"]["p50"] < 5.0
     # Bus load over whole hyperperiods is the protocol's mean load (can-utils' frame lengths).
     duration = frames[-1].timestamp - frames[0].timestamp
-    expected = mean_load_bits_per_s(CATALOG) * (TICKS * 0.020) / duration / 1e6 * 100
+    expected = mean_load_bits_per_s(CATALOG) * (TICKS * TICK_S) / duration / 1e6 * 100
     assert r["bus_load"]["mean_percent_worst"] == pytest.approx(expected, rel=0.02)
     assert r["bus_load"]["peak_20ms_window_percent_worst"] > r["bus_load"]["mean_percent_worst"] * 0.9
 

@@ -14,6 +14,7 @@ import sys
 import pytest
 
 from protocol.catalog import DBC_PATH, default_catalog
+from protocol.clock import TICK_S
 from protocol.codec import Codec
 from tools.cli import main
 from tools.trace.decode import TraceDecoder
@@ -25,7 +26,7 @@ TICKS = 300  # 6 s: stand-up, weight shift and lean
 @pytest.fixture(scope="module")
 def walk(tmp_path_factory):
     path = tmp_path_factory.mktemp("walk") / "walk.log"
-    assert main(["trace", "record", str(path), "--walk", "1", "--max-time", str(TICKS * 0.02), "--seed", "1"]) == 0
+    assert main(["trace", "record", str(path), "--walk", "1", "--max-time", str(TICKS * TICK_S), "--seed", "1"]) == 0
     return path
 
 

@@ -42,8 +42,7 @@ import pytest
 
 from controller.faults import FaultKind
 from controller.loop import READ_WINDOW_S
-from protocol.catalog import TICK_MS
-from protocol.clock import MonotonicClock
+from protocol.clock import TICK_MS, MonotonicClock
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver
 from protocol.enums import GaitState

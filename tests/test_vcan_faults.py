@@ -45,8 +45,7 @@ import yaml
 
 from config import default_config_path, load_config, with_overrides
 from config.loader import config_to_dict
-from protocol.catalog import TICK_MS
-from protocol.clock import MonotonicClock
+from protocol.clock import TICK_S, MonotonicClock
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver
 from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
@@ -56,7 +55,6 @@ from tests.test_vcan_trace import PROBE_ID, candump
 
 pytestmark = pytest.mark.vcan
 
-TICK_S = TICK_MS / 1000.0
 CODEC = Codec()
 CATALOG = CODEC.catalog
 NODES = CATALOG.joint_nodes  # left hip, left knee, right hip, right knee

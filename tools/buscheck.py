@@ -34,8 +34,8 @@ import numpy as np
 from config import Config
 from config.loader import AiderError
 from protocol.bus import RECEIVE_BUFFER_BYTES, open_bus
-from protocol.catalog import TICK_MS, MessageSpec
-from protocol.clock import Clock, MonotonicClock, TickTimer
+from protocol.catalog import MessageSpec
+from protocol.clock import TICK_MS, TICK_NS, Clock, MonotonicClock, TickTimer
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver, Transmitter
 from protocol.enums import GaitState, NmtCommand, NmtState
@@ -402,7 +402,7 @@ def run_controller(
                 clock.sleep_until(clock.now_ns() + 200_000_000)  # candump must listen before the first frame
             side = ControllerSide(
                 bus, codec, cfg.protocol.max_delta_counter, clock,
-                None if lockstep else TICK_MS * 1_000_000, tick_timeout_s,
+                None if lockstep else TICK_NS, tick_timeout_s,
             )
             if peer:
                 peer.start()

@@ -26,8 +26,8 @@ import can
 
 from config import Config
 from protocol.bus import ListenOnly, open_bus
-from protocol.catalog import TICK_MS, Catalog, MessageSpec
-from protocol.clock import Clock, TickTimer
+from protocol.catalog import Catalog, MessageSpec
+from protocol.clock import TICK_MS, TICK_NS, Clock, TickTimer
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver, Transmitter
 from protocol.enums import DriveState, GaitState, JointMode, NmtCommand, NmtState, NodeError
@@ -280,7 +280,7 @@ class HoldCheck:
                         self._send(spec, spec.record(gait_state=int(GaitState.HOLD)))
                     # the controller's telemetry frames carry nothing a node acts on: not sent
                 self._collect(expected, self.clock.now_ns() + int(self.tick_timeout_s * 1e9) if timer is None else timer.deadline_ns(tick + 1))
-            self._collect(Counter(), self.clock.now_ns() + 2 * TICK_MS * 1_000_000)  # the last tick's answers
+            self._collect(Counter(), self.clock.now_ns() + 2 * TICK_NS)  # the last tick's answers
         finally:  # also after an error or Ctrl-C: the drives go on holding, and no command watchdog trips
             self._nmt(NmtCommand.ENTER_PRE_OPERATIONAL)
         return self.report(ticks)
@@ -332,7 +332,7 @@ def hold_check(bus: can.BusABC, cfg: Config, clock: Clock, *, ticks: int, lockst
     check = HoldCheck(
         bus, Codec(), clock, max_delta_counter=cfg.protocol.max_delta_counter,
         hold_torque_nm=cfg.controller.safety.hold_torque_nm,
-        period_ns=None if lockstep else TICK_MS * 1_000_000, tick_timeout_s=tick_timeout_s,
+        period_ns=None if lockstep else TICK_NS, tick_timeout_s=tick_timeout_s,
     )
     check.wait_for_nodes(handshake_timeout_s)
     result = check.run(ticks, fault_reset=fault_reset)

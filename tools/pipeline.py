@@ -29,8 +29,7 @@ from controller.loop import LockstepLoop
 from controller.policy import StepPolicy, StepRecord
 from controller.telemetry import TelemetryLog
 from protocol.bus import virtual_bus
-from protocol.catalog import TICK_MS
-from protocol.clock import MonotonicClock
+from protocol.clock import TICK_MS, MonotonicClock
 from protocol.enums import GaitState
 from sim.pace import default_max_time_s
 

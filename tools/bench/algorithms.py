@@ -19,7 +19,7 @@ from typing import Any, Callable
 import numpy as np
 
 from config import ConfigError, default_config_path, load_config
-from protocol.clock import MonotonicClock
+from protocol.clock import TICK_S, MonotonicClock
 
 GOALS_US = {"dmp_tick": 30.0, "ik": 10.0, "pi2_update": 200.0}
 
@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if cfg is None:
         raise ConfigError("section required by the algorithm benchmark", key="controller")
     weights = load_swing(cfg)
-    tau, dt, substeps = swing_duration_s(cfg), 0.02, cfg.swing.substeps
+    tau, dt, substeps = swing_duration_s(cfg), TICK_S, cfg.swing.substeps
     ticks_per_swing = int(math.ceil(tau / dt))
     dmp = Dmp(weights)
     goal = np.array([0.15, 0.0])

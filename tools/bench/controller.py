@@ -81,7 +81,7 @@ def _walk_summary(outcome: Any, states: list[str]) -> dict[str, Any]:
 
 def _max_ticks(max_ticks: int | None, cycles: int) -> int:
     """Ticks a walk of ``cycles`` may take: the walk's own stall limit, or ``max_ticks`` if fewer."""
-    from protocol.catalog import TICK_MS
+    from protocol.clock import TICK_MS
     from tools.pipeline import default_max_time_s
 
     limit = int(default_max_time_s(cycles) * 1000 / TICK_MS)

@@ -18,7 +18,7 @@ from typing import Any
 
 from config import ConfigError, default_config_path, load_config, with_overrides
 from protocol.bus import virtual_bus
-from protocol.clock import MonotonicClock
+from protocol.clock import TICK_S, MonotonicClock
 
 GOAL_OVERHEAD_PERCENT = 25.0
 
@@ -72,7 +72,7 @@ def _run_mode(cfg: Any, mode: str, ticks: int) -> dict[str, Any]:
             status = host.status()
         finally:
             host.close()
-    simulated = ticks * 0.02
+    simulated = ticks * TICK_S
     return {
         "mode": mode,
         "ticks": ticks,

@@ -18,8 +18,7 @@ from typing import Any
 import numpy as np
 
 from config import ConfigError, default_config_path, load_config
-from protocol.catalog import TICK_MS
-from protocol.clock import MonotonicClock
+from protocol.clock import TICK_MS, MonotonicClock
 from tools.bench import median_of_runs
 
 GOAL_REALTIME = 10.0

@@ -140,7 +140,7 @@ def _watch(url: str, run_walk: Callable[[], None], cpu: Callable[[], float], scr
 def _realtime_walk(cfg: Any, args: argparse.Namespace, channel: str) -> dict[str, Any]:
     """A deployment's walk: ``aider-exo nodes`` and ``aider-exo controller --cycles N`` (its real-time
     set-up: SCHED_FIFO where allowed), both in real time on ``channel``; the controller's summary."""
-    from protocol.catalog import TICK_MS
+    from protocol.clock import TICK_MS
     from tools.pipeline import default_max_time_s, wait_for_boot_ups
 
     bus = ["--bus", "udp_multicast", "--channel", channel] + (["--config", args.config] if args.config else [])
@@ -196,11 +196,12 @@ def _beside(cfg: Any, args: argparse.Namespace, say: Callable[[str], None]) -> d
 
 
 def _in_process_walk(cfg: Any, args: argparse.Namespace, channel: str) -> dict[str, Any]:
+    from protocol.clock import TICK_S
     from tools.pipeline import Pace, walk
 
     pace = Pace(args.pace)
     outcome = walk(cfg, cycles=args.cycles, seed=SEED, mode=MODE, channel=channel, compare_ratio=False,
-                   max_time_s=args.max_ticks * 0.02 if args.max_ticks else None,
+                   max_time_s=args.max_ticks * TICK_S if args.max_ticks else None,
                    on_tick=lambda result, core, host: pace(result.tick))
     return outcome.summary()
 

@@ -24,6 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run_fit(args: argparse.Namespace) -> int:
     from controller.dmp import Dmp
+    from protocol.clock import TICK_S
     from controller.swing import WEIGHTS_PATH, demonstration, fit_swing, save_swing
 
     cfg = load_config(args.config or default_config_path())
@@ -36,7 +37,7 @@ def run_fit(args: argparse.Namespace) -> int:
     # Reproduction error of the fitted DMP on its own demonstration, ticked as the controller will.
     times, xz = demonstration(cfg.controller)
     dmp = Dmp(weights)
-    ticks, positions = dmp.rollout(0.02, float(times[-1]), substeps=cfg.controller.swing.substeps)
+    ticks, positions = dmp.rollout(TICK_S, float(times[-1]), substeps=cfg.controller.swing.substeps)
     reference = np.column_stack([np.interp(ticks, times, xz[:, k]) for k in range(xz.shape[1])])
     error_mm = float(np.max(np.linalg.norm(positions - reference, axis=1)) * 1000)
     result = {"file": str(path), "basis_functions": weights.weights.shape[1], "step_m": cfg.controller.swing.demonstration_step_m,

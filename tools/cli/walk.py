@@ -12,6 +12,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from protocol.clock import TICK_S
 from tools.cli.common import StopSignals, add_config_options, add_mode_option, config_path, load_cli_config, patients_folder, positive_float, positive_int, print_json, sim_mode, port, seed_type
 
 
@@ -71,7 +72,7 @@ class StatusLine:
     def __call__(self, result: Any, core: Any) -> None:
         if not self.enabled:
             return
-        t = result.tick * 0.02
+        t = result.tick * TICK_S
         new_step = len(core.steps) != self.steps
         if not (self.tty or new_step or t - self.last_s >= 1.0):
             return

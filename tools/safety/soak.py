@@ -30,7 +30,8 @@ from typing import Any
 import numpy as np
 
 from config import Config
-from protocol.catalog import TICK_MS, default_catalog
+from protocol.catalog import default_catalog
+from protocol.clock import TICK_MS
 from protocol.enums import GaitState
 from protocol.faultbus import BusFault
 from tools.safety.rig import FaultRig

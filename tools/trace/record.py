@@ -25,8 +25,7 @@ from typing import Any
 import can
 
 from protocol.bus import virtual_bus
-from protocol.catalog import TICK_MS
-from protocol.clock import Clock
+from protocol.clock import TICK_MS, TICK_S, Clock
 from protocol.codec import Codec, Decoded
 from tools.trace import TraceError
 from tools.trace.files import SIDECAR_SCHEMA, partial_path, sidecar_path, write_json
@@ -169,7 +168,7 @@ class LockstepRestamper:
             self._sync_wall = first_sync.timestamp
             self.start_s = first_sync.timestamp - self._held[0].timestamp
             batch, self._held = self._held, []
-        limit = TICK_MS / 1000.0 * 0.975  # a frame stays inside its tick, before the next SYNC
+        limit = TICK_S * 0.975  # a frame stays inside its tick, before the next SYNC
         for msg in batch:
             if msg.arbitration_id == self.sync_id:
                 decoded = self.codec.decode(msg.arbitration_id, msg.data)

@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 
 from protocol.busload import frame_bits
-from protocol.catalog import TICK_MS, Catalog
+from protocol.catalog import Catalog
+from protocol.clock import TICK_MS
 from tools.trace.decode import OK, Row
 
 

@@ -10,7 +10,7 @@ check's (every signal swept over its range), alive counters consecutive, CRCs go
 from __future__ import annotations
 
 from protocol.busload import frame_bits
-from protocol.catalog import TICK_MS
+from protocol.clock import TICK_MS
 from protocol.codec import Codec
 from protocol.e2e import Transmitter
 from tools.buscheck import expected_record

@@ -23,11 +23,10 @@ from pathlib import Path
 from typing import Any
 
 from controller.telemetry import FIELDS, SCHEMA_VERSION
-from protocol.catalog import TICK_MS
+from protocol.clock import TICK_S
 from tools.trace import TraceError
 
 SCHEMA_NAME = "aider-exo controller telemetry"
-TICK_S = TICK_MS / 1000.0
 EXAMPLES = 3
 JOINTS = ("left hip", "left knee", "right hip", "right knee")
 

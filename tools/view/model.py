@@ -35,7 +35,8 @@ import numpy as np
 
 from controller.estimator import Estimate, Measurements, StateEstimator
 from protocol.busload import frame_bits
-from protocol.catalog import TICK_MS, Catalog
+from protocol.catalog import Catalog
+from protocol.clock import TICK_MS
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver
 from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtState, NodeError, PolicyMode
