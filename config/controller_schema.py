@@ -85,6 +85,8 @@ class LearningConfig:
     xhat_max: float = field_spec(doc="Upper bound of Xhat_CoM.", min=-1.0, max=2.0)
     fall_cost: float = field_spec(doc="lambda1: cost of falling at the first step.", min=0.0, max=1e7)
     force_cost: float = field_spec(doc="lambda2: weight of the summed per-step stick force.", min=0.0, max=1e3)
+    reuse_best: int = field_spec(doc="The best roll-outs of a batch carried into the next one (0: none, the paper's).", min=0, max=99)
+    max_consecutive_rejections: int = field_spec(doc="Updates rejected in a row (non-finite or out of bounds) that disable learning for the run (docs/FAULTS.md F28).", min=1, max=100)
 
     def validate(self) -> None:
         if self.alpha_min >= self.alpha_max:
@@ -95,6 +97,8 @@ class LearningConfig:
             fail("initial_alpha", "must lie within alpha_min..alpha_max")
         if not self.xhat_min <= self.initial_xhat <= self.xhat_max:
             fail("initial_xhat", "must lie within xhat_min..xhat_max")
+        if self.reuse_best >= self.rollouts_per_update:
+            fail("reuse_best", "must be below rollouts_per_update")
 
 
 @dataclass(frozen=True, kw_only=True)

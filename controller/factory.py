@@ -73,6 +73,8 @@ def pi2_params(cfg: ControllerConfig) -> Pi2Params:
         lambda1=c.fall_cost,
         lambda2=c.force_cost,
         average_last=c.average_last,
+        reuse_best=c.reuse_best,
+        max_consecutive_rejections=c.max_consecutive_rejections,
     )
 
 

@@ -313,29 +313,24 @@ class Pi2Params:
     normalised, so one fallen roll-out with a huge cost squeezes the others' costs together and
     their weights towards uniform, and that batch makes little progress.
 
-    The defaults (noise sigma_alpha 5.0, sigma_xhat 0.15, decaying by 0.8 per update to a floor of
-    0.1; the evaluated theta averaged over the last 5 updates) were tuned on the toy task of
-    ``tests/test_pi2.py`` (optimum alpha -8.4, Xhat 0.80, the paper's; starts A and B of the paper's
-    Table II, K = 5, N = 10): from 100 seeds per start, 198 of 200 runs had the evaluated theta
-    within 5 % of each optimum value (|alpha - alpha*| <= 0.42, |Xhat - Xhat*| <= 0.04) from at
-    most 15 updates on. Without the averaging, the running theta wanders near the optimum with the
-    exploration floor and about 6 % of runs miss that tolerance.
+    No field has a default: the controller's come from its configuration
+    (``controller.learning``, :func:`controller.factory.pi2_params`), a test's from the test.
     """
 
-    rollouts_per_update: int = 5  # K
-    steps_per_rollout: int = 10  # N
-    h: float = 10.0
-    noise_std: tuple[float, ...] = (5.0, 0.15)  # (sigma_alpha, sigma_xhat) at the start
-    noise_decay: float = 0.8  # factor per accepted update
-    noise_floor: float = 0.1  # fraction of noise_std kept at the end
-    lower: tuple[float, ...] = (-20.0, 0.0)  # (alpha_min, xhat_min)
-    upper: tuple[float, ...] = (0.0, 1.5)  # (alpha_max, xhat_max)
-    method: str = "pi2"  # "pi2" | "pibb"
-    lambda1: float = 5000.0
-    lambda2: float = 1.0
-    reuse_best: int = 0  # best roll-outs of a batch carried into the next one
-    max_consecutive_rejections: int = 3
-    average_last: int = 5  # evaluation theta: mean of the last M accepted updates (Polyak-Ruppert)
+    rollouts_per_update: int  # K
+    steps_per_rollout: int  # N
+    h: float
+    noise_std: tuple[float, ...]  # (sigma_alpha, sigma_xhat) at the start
+    noise_decay: float  # factor per accepted update
+    noise_floor: float  # fraction of noise_std kept at the end
+    lower: tuple[float, ...]  # (alpha_min, xhat_min)
+    upper: tuple[float, ...]  # (alpha_max, xhat_max)
+    method: str  # "pi2" | "pibb"
+    lambda1: float
+    lambda2: float
+    reuse_best: int  # best roll-outs of a batch carried into the next one
+    max_consecutive_rejections: int  # rejected updates in a row that disable learning (F28)
+    average_last: int  # evaluation theta: mean of the last M accepted updates (Polyak-Ruppert)
 
     def __post_init__(self) -> None:
         for name in ("noise_std", "lower", "upper"):
