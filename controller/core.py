@@ -42,13 +42,13 @@ from controller.envelope import Envelope, JointBounds, JointCommand
 from controller.estimator import Estimate, Measurements, StateEstimator
 from controller.faults import Fault, FaultKind
 from controller.factory import balance_gains, leg as make_leg, leg_loads, step_bounds, swing_duration_s
-from controller.fsm import SWINGS, FsmInputs, GaitFsm
+from controller.fsm import FsmInputs, GaitFsm
 from controller.gait import GaitPlanner
 from controller.policy import StepPolicy, StepRecord
 from protocol.catalog import Catalog, default_catalog
 from protocol.clock import TICK_S
 from protocol.codec import Decoded, RejectReason, Rejection
-from protocol.enums import DriveState, GaitState, JointMode, NmtCommand, NmtState, PolicyMode
+from protocol.enums import SWINGS, WALKING, DriveState, GaitState, JointMode, NmtCommand, NmtState, PolicyMode
 
 # Rejections that say a node's frame was damaged, masqueraded or out of order (F6-F8). Not these: a
 # repeated counter (a duplicate, F5, or a frozen node, F9), a wrong length or a value out of the
@@ -445,7 +445,7 @@ class ControllerCore:
         before = self.fsm.state
         ready = done = landed = False
         sticks_loaded = bool(estimate and all(estimate.sticks_loaded))
-        if estimate is not None and fresh and before in (GaitState.DOUBLE_SUPPORT, *SWINGS):
+        if estimate is not None and fresh and before in WALKING:
             self.gait.track_sticks(estimate, measurements)
             self._step.add(measurements.stick_force_n)
             if before == GaitState.DOUBLE_SUPPORT:
@@ -480,7 +480,7 @@ class ControllerCore:
             self.reset_requested = False
         if state != before:
             self.walk_requested = self.walk_requested and state in (GaitState.INIT, GaitState.STAND, GaitState.STOP)
-            self.stop_requested = self.stop_requested and state in (GaitState.DOUBLE_SUPPORT, *SWINGS)
+            self.stop_requested = self.stop_requested and state in WALKING
         finished = self._gait_transition(tick, before, state, estimate, measurements, landed, events)
         self.pending_faults.clear()
         self._command(state, frames, measurements)

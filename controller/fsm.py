@@ -25,9 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from controller.faults import Fault, FaultKind
-from protocol.enums import GaitState
-
-SWINGS = (GaitState.SWING_LEFT, GaitState.SWING_RIGHT)
+from protocol.enums import SWINGS, WALKING, GaitState
 #: the cause of leaving HOLD or FAULT
 OPERATOR_RESET = "operator reset"
 
@@ -149,4 +147,4 @@ class GaitFsm:
     @property
     def moving(self) -> bool:
         """Whether the legs may get non-hold commands this tick (I2)."""
-        return self.state in (GaitState.DOUBLE_SUPPORT, *SWINGS)
+        return self.state in WALKING

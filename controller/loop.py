@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 import can
 
 from controller.core import ControllerCore, TickResult
-from controller.fsm import SWINGS
 from controller.telemetry import TelemetryLog
 from controller.timing import TickStats
 from protocol.bus import send_of
@@ -26,7 +25,7 @@ from protocol.busload import wire_time_ns
 from protocol.clock import MAX_STALLS, STALL_NS, TICK_NS, Clock, MonotonicClock, TickTimer
 from protocol.codec import Codec
 from protocol.e2e import Receiver, Transmitter
-from protocol.enums import JointMode, NmtState
+from protocol.enums import SWINGS, JointMode, NmtState
 
 
 @dataclass

@@ -44,7 +44,7 @@ from protocol.catalog import MessageSpec
 from protocol.clock import MAX_STALLS, STALL_NS, TICK_MS, TICK_NS, Clock, MonotonicClock
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver, Transmitter
-from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
+from protocol.enums import WALKING, DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
 from protocol.errors import EncodeError
 from sim.actuation import Mode
 from sim.model import EXO_JOINTS
@@ -56,7 +56,6 @@ RX_PER_TICK = 200  # real time: queued frames handled before a tick, at most (th
 SYNC_PHASE_NS = TICK_NS // 2  # real time: the physics tick this long after a SYNC (see the module doc)
 SYNC_PULL = 8  # once locked, a SYNC corrects the phase by 1/8 of its error (a SYNC read late moves it little)
 #: gait states in which the patient walks (moves the sticks and leans); otherwise the patient stands
-WALKING_STATES = frozenset({GaitState.DOUBLE_SUPPORT, GaitState.SWING_LEFT, GaitState.SWING_RIGHT})
 
 
 _NMT_SHORT = {"BOOT_UP": "boot", "PRE_OPERATIONAL": "preop", "OPERATIONAL": "op", "STOPPED": "stopped"}
@@ -230,7 +229,7 @@ class NodesHost:
             for port in self.ports.values():
                 port.firmware.on_controller_heartbeat(now)
             self.gait_state = GaitState(values.gait_state)
-            self.patient.walking = self.gait_state in WALKING_STATES
+            self.patient.walking = self.gait_state in WALKING
         elif family == "NMT_COMMAND":
             targets = self.ports.values() if values.node_id == 0 else [self._by_id.get(values.node_id)]
             now = self._node_time_ms(self.last_sync_tick)

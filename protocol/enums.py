@@ -109,6 +109,12 @@ class GaitState(enum.IntEnum):
     FAULT = 7
 
 
+#: the states with a leg in the air
+SWINGS = (GaitState.SWING_LEFT, GaitState.SWING_RIGHT)
+#: the states in which the gait moves the legs (double support and the swings; not a stop, HOLD or FAULT)
+WALKING = (GaitState.DOUBLE_SUPPORT, *SWINGS)
+
+
 class PolicyMode(enum.IntEnum):
     """CONTROLLER_STEP.policy: where the controller's step lengths come from."""
 

@@ -200,7 +200,7 @@ def test_the_controller_benchmark_runs_the_real_pipeline():
     result = bench.run(argparse.Namespace(config=None, cycles=1, realtime_cycles=1, max_ticks=60, repeats=2))
     ls, rt = result["lockstep"], result["realtime"]
     assert ls["walk"]["ticks"] == 60 and rt["walk"]["ticks"] == 60 and result["plain_sleep_loop"]["ticks"] == 60
-    assert ls["walk"]["walking_ticks"] > 0 and ls["walk"]["final_state"] in bench.WALKING  # the figures are from walking
+    assert ls["walk"]["walking_ticks"] > 0 and ls["walk"]["final_state"] in bench.WALKING_NAMES  # the figures are from walking
     assert ls["physics_ticks"] == 60 and ls["controller_work_us"]["max"] > 0 and ls["pipeline_to_bare_sim"] > 0
     assert 0 < ls["pipeline_to_bare_physics"] < ls["pipeline_to_bare_sim"]  # the physics is part of the simulation's tick
     assert rt["walk"]["fault"] is None and rt["wakeup_lateness"]["max_us"] >= rt["wakeup_lateness"]["p99_us"]

@@ -33,6 +33,7 @@ import numpy as np
 from config import ConfigError, default_config_path, load_config, with_overrides
 from protocol.bus import virtual_bus
 from protocol.clock import MonotonicClock
+from protocol.enums import WALKING
 from tools.bench import median_of_runs
 
 # issue 29's goals
@@ -41,7 +42,7 @@ GOAL_WORK_P99_US = 300.0
 GOAL_PIPELINE_TO_PHYSICS = 0.5  # the lock-step pipeline's ticks per second over bare physics' ticks per second
 MODE = "sagittal"  # the mode that walks (docs/SIM.md)
 SEED = 0
-WALKING = ("DOUBLE_SUPPORT", "SWING_LEFT", "SWING_RIGHT")
+WALKING_NAMES = tuple(s.name for s in WALKING)  # the states as the walks record them
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -75,7 +76,7 @@ def _walk_summary(outcome: Any, states: list[str]) -> dict[str, Any]:
         "hold": outcome.hold,
         "final_state": outcome.final_state,
         "ticks": len(states),
-        "walking_ticks": sum(s in WALKING for s in states),
+        "walking_ticks": sum(s in WALKING_NAMES for s in states),
     }
 
 
@@ -125,7 +126,7 @@ def _lockstep(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
         finally:
             host.close()
     n = len(states)
-    walking = np.array([s in WALKING for s in states], dtype=bool)
+    walking = np.array([s in WALKING_NAMES for s in states], dtype=bool)
     wall = np.diff(np.array([start, *end_ns], dtype=np.int64))  # each tick: controller + nodes + simulation
     sim_tick = np.diff(np.array([0, *sim_ns], dtype=np.int64))
     physics_tick = np.diff(np.array([0, *physics_ns], dtype=np.int64))
@@ -187,7 +188,7 @@ def _realtime(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
         finally:
             host.close()
     n = len(states)
-    walking = np.array([s in WALKING for s in states], dtype=bool)
+    walking = np.array([s in WALKING_NAMES for s in states], dtype=bool)
     s = loop.stats.summary()
     return {
         "walk": _walk_summary(outcome, states),

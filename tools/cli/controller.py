@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Any
 
-from protocol.enums import DriveState, GaitState
+from protocol.enums import WALKING, DriveState, GaitState
 from tools.cli.common import StopSignals, add_config_options, config_path, load_cli_config, patients_folder, positive_float, positive_int, print_json
 
 
@@ -90,7 +90,6 @@ def run(args: argparse.Namespace) -> int:
     notifier = Notifier()
     rt = None
     telemetry = None
-    walking = {GaitState.DOUBLE_SUPPORT, GaitState.SWING_LEFT, GaitState.SWING_RIGHT}
     with StopSignals() as stop:
         bus = open_bus(cfg.bus)
         try:
@@ -124,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
                     if stop.requested or (args.cycles is not None and landed >= 2 * args.cycles):
                         core.request_stop()  # the swing in progress ends first
                         stopping_since = loop.report.ticks
-                elif state not in walking or loop.report.ticks - stopping_since > 500:
+                elif state not in WALKING or loop.report.ticks - stopping_since > 500:
                     break
                 asked = False
                 if reset == "armed" and state == GaitState.FAULT:

@@ -17,9 +17,9 @@ import can
 
 from controller.core import SENSOR_MESSAGES, ControllerCore, TickResult
 from controller.faults import Fault
-from controller.fsm import OPERATOR_RESET, SWINGS
+from controller.fsm import OPERATOR_RESET
 from protocol.codec import Codec, Decoded
-from protocol.enums import DriveState, GaitState, JointMode, NmtState
+from protocol.enums import SWINGS, WALKING, DriveState, GaitState, JointMode, NmtState
 
 EPS = 1e-3  # the encoding's quantum is 1e-4 rad, 0.002 rad/s, 0.1 N.m, 1 N.m: the bounds hold to it
 STOP_STATES = (GaitState.HOLD, GaitState.FAULT)
@@ -104,7 +104,7 @@ class Oracle:
     def _health(self, k: int, state: GaitState) -> None:
         """A TRACK command went out: the FSM moves, and every node is healthy with fresh data."""
         core = self.core
-        if state not in (GaitState.DOUBLE_SUPPORT, *SWINGS):
+        if state not in WALKING:
             self._fail(k, f"I2 TRACK command in {state.name}")
         for name, node in core.nodes.items():
             if node.nmt != NmtState.OPERATIONAL:
