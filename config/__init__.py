@@ -11,8 +11,8 @@ Typical use::
     bus = make_bus(cfg.bus)        # each component gets only its section
 """
 
+from .errors import AiderError
 from .loader import (
-    AiderError,
     ConfigError,
     FieldError,
     FieldSpec,

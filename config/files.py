@@ -18,7 +18,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO
 
-from config.loader import AiderError
+from config.errors import AiderError
 
 __all__ = ["OutputError", "atomic_path", "atomic_write", "check_output", "check_output_folder", "same_file",
            "write_bytes", "write_text"]

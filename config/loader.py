@@ -57,8 +57,9 @@ from typing import Any, Literal, NoReturn, TypeVar, Union
 
 import yaml
 
+from config.errors import AiderError
+
 __all__ = [
-    "AiderError",
     "ConfigError",
     "FieldError",
     "FieldSpec",
@@ -92,10 +93,6 @@ _PLAIN_KEY = re.compile(r"[A-Za-z0-9_-]+")
 # ---------------------------------------------------------------------------
 # Errors
 # ---------------------------------------------------------------------------
-
-
-class AiderError(Exception):
-    """Base class of the errors aider-exo reports to its user."""
 
 
 class ConfigError(AiderError):

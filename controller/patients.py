@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from config.files import OutputError, write_text
-from config.loader import AiderError
+from config.errors import AiderError
 from controller.pi2 import LearnerError, Pi2Learner
 
 FORMAT = "aider-exo patient"

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from config.loader import AiderError
+from config.errors import AiderError
 from controller.compensation import StepBounds, StepGoal, compensated_step
 from controller.pi2 import Pi2Learner, UpdateRecord
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from config.controller_schema import ControllerConfig
 from config.files import write_text
-from config.loader import AiderError
+from config.errors import AiderError
 from controller.demonstration import demonstration_hash, swing_demonstration
 from controller.dmp import DmpParams, DmpWeights, fit
 

@@ -25,7 +25,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from config.loader import AiderError
+from config.errors import AiderError
 
 SCHEMA_VERSION = 2
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from config.loader import AiderError
+from config.errors import AiderError
 from config.nodes_schema import VALUE_FAULTS, FaultConfig
 from protocol.catalog import Catalog, MessageSpec
 from protocol.clock import TICK_MS

@@ -36,7 +36,7 @@ import can
 import numpy as np
 
 from config import Config
-from config.loader import AiderError
+from config.errors import AiderError
 from nodes.faults import FaultInjector
 from nodes.firmware import ERR_CURRENT, ERR_GENERIC, DriveCommand, JointLimits, NodeFirmware
 from protocol.bus import send_of

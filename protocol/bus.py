@@ -22,7 +22,7 @@ from can.interfaces.virtual import VirtualBus, channels_lock
 
 from config import BusConfig
 from protocol.clock import MonotonicClock, epoch_s
-from config.loader import AiderError
+from config.errors import AiderError
 from protocol.errors import BusUnavailableError
 
 _FIXES = (

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from config.loader import AiderError
+from config.errors import AiderError
 
 
 class ProtocolError(AiderError):

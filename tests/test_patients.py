@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from config import default_config_path, load_config, with_overrides
-from config.loader import AiderError
+from config.errors import AiderError
 from controller import factory, patients
 from controller.patients import (
     PatientError,

@@ -15,7 +15,7 @@ from aiohttp import WSMsgType
 from aiohttp.test_utils import TestClient, TestServer
 
 from config import default_config_path, load_config, with_overrides
-from config.loader import AiderError
+from config.errors import AiderError
 from protocol.bus import virtual_bus
 from protocol.catalog import default_catalog
 from protocol.codec import Codec

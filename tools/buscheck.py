@@ -32,7 +32,7 @@ import can
 import numpy as np
 
 from config import Config
-from config.loader import AiderError
+from config.errors import AiderError
 from protocol.bus import RECEIVE_BUFFER_BYTES, open_bus
 from protocol.catalog import MessageSpec
 from protocol.clock import TICK_MS, TICK_NS, Clock, MonotonicClock, TickTimer

@@ -280,7 +280,7 @@ def walk_controller(
 def wait_for_boot_ups(bus_cfg: Any, nodes: subprocess.Popen, timeout_s: float = 120.0) -> None:
     """Until the four node boards' boot-up heartbeats are on the bus ``bus_cfg`` (seen on a socket of
     our own), from the nodes process ``nodes`` (an error when it exits first or after ``timeout_s``)."""
-    from config.loader import AiderError
+    from config.errors import AiderError
     from protocol.bus import open_bus
     from protocol.codec import Codec, Decoded
     from protocol.enums import NmtState

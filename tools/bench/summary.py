@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 from typing import Any, Callable
 
-from config.loader import AiderError
+from config.errors import AiderError
 from protocol.clock import MonotonicClock
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from config import ConfigError, default_config_path, load_config, with_overrides
-from config.loader import AiderError
+from config.errors import AiderError
 from protocol.bus import free_udp_channel
 from protocol.clock import MonotonicClock
 from tools.view.browser import cpu_s

@@ -14,7 +14,7 @@ import os
 import sys
 from typing import Sequence
 
-from config.loader import AiderError
+from config.errors import AiderError
 
 #: subcommand name -> module under tools.cli
 SUBCOMMANDS = {

@@ -63,7 +63,7 @@ def _mb(n: int | None) -> str:
 
 def run_record(args: argparse.Namespace) -> int:
     from config import BusConfig
-    from config.loader import AiderError
+    from config.errors import AiderError
     from protocol.bus import open_bus
     from protocol.clock import MonotonicClock
     from controller.sdnotify import Notifier

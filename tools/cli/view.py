@@ -38,7 +38,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from config.loader import AiderError
+    from config.errors import AiderError
     from tools.view import make_feed
     from tools.view.server import ViewServer, check_bind
 

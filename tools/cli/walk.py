@@ -251,7 +251,7 @@ def _summary_text(s: dict[str, Any]) -> str:
 
 def _walk_two_processes(args: argparse.Namespace, cfg: Any, policy: Any, status: Any, telemetry: Any):
     """The node boards as ``aider-exo nodes`` in a second process on the same bus (SocketCAN or UDP multicast)."""
-    from config.loader import AiderError
+    from config.errors import AiderError
     from protocol.bus import open_bus
     from tools.pipeline import wait_for_boot_ups, walk_controller
 

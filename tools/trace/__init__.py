@@ -5,7 +5,7 @@ through :mod:`protocol.catalog`; decoding and the CRC and alive-counter checks a
 own :class:`protocol.e2e.Receiver`; timing goes through :mod:`protocol.clock`. See docs/TRACE.md.
 """
 
-from config.loader import AiderError
+from config.errors import AiderError
 
 
 class TraceError(AiderError):

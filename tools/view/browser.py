@@ -12,7 +12,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from config.loader import AiderError
+from config.errors import AiderError
 
 #: chromium's flags for a headless page in a container: no sandbox (root), no GPU, and none of
 #: the background traffic that would try to reach the network

@@ -25,7 +25,7 @@ from typing import Any
 
 from aiohttp import WSMsgType, web
 
-from config.loader import AiderError
+from config.errors import AiderError
 from tools.view.source import Feed
 
 STATIC = resources.files("tools.view") / "static"

@@ -13,7 +13,7 @@ from typing import Any
 import can
 
 import protocol.bus as protocol_bus
-from config.loader import AiderError
+from config.errors import AiderError
 from protocol.clock import MonotonicClock, epoch_s
 from tools.view.model import ViewModel
 
