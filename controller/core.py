@@ -38,7 +38,7 @@ import numpy as np
 
 from config.controller_schema import ControllerConfig
 from controller.dmp import Dmp, DmpWeights
-from controller.envelope import Envelope, JointBounds, JointCommand
+from controller.envelope import Envelope, JointBounds
 from controller.estimator import Estimate, Measurements, StateEstimator
 from controller.faults import Fault, FaultKind
 from controller.factory import balance_gains, leg as make_leg, leg_loads, step_bounds, swing_duration_s
@@ -48,6 +48,7 @@ from controller.policy import StepPolicy, StepRecord
 from protocol.catalog import Catalog, default_catalog
 from protocol.clock import TICK_S
 from protocol.codec import Decoded, RejectReason, Rejection
+from protocol.commands import JointCommand
 from protocol.enums import SWINGS, WALKING, DriveState, GaitState, JointMode, NmtCommand, NmtState, PolicyMode
 
 # Rejections that say a node's frame was damaged, masqueraded or out of order (F6-F8). Not these: a

@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from protocol.commands import JointCommand
 from protocol.enums import JointMode
 
 
@@ -26,17 +27,6 @@ class JointBounds:
     name: str
     lower_rad: float  # joint limits (the margin is applied by the envelope)
     upper_rad: float
-
-
-class JointCommand(NamedTuple):
-    """What is sent to one node (the fields of JOINT_COMMAND). Immutable records of every tick
-    are named tuples: half the cost of a frozen dataclass to make."""
-
-    mode: JointMode
-    position_rad: float = 0.0
-    velocity_rad_s: float = 0.0
-    torque_nm: float = 0.0
-    torque_limit_nm: float = 0.0
 
 
 class Checked(NamedTuple):

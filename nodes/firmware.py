@@ -1,7 +1,7 @@
 """The firmware of one node board, without I/O: CANopen NMT, the drive state, the command watchdog,
 the controller-heartbeat consumer, and EMCY (docs/FAULTS.md, rows F1, F9, F20-F24).
 
-The host feeds it decoded frames and its ticks and applies the :class:`DriveCommand` it returns to
+The host feeds it decoded frames and its ticks and applies the :class:`JointCommand` it returns to
 the joint; it reads the EMCY queue and the NMT state to build the node's frames. Nothing here
 knows about CAN frames, PyBullet or wall-clock time, so every rule is tested tick by tick.
 
@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from protocol.commands import JointCommand
 from protocol.enums import DriveState, EmcyCode, JointMode, NmtCommand, NmtState, NodeError
 
 # CiA 301 error register (object 0x1001) bits.
@@ -44,16 +45,6 @@ class JointLimits:
     upper_rad: float
     velocity_rad_s: float
     torque_nm: float
-
-
-class DriveCommand(NamedTuple):
-    """What the drive does until the next SYNC."""
-
-    mode: JointMode
-    position_rad: float = 0.0
-    velocity_rad_s: float = 0.0
-    torque_nm: float = 0.0
-    torque_limit_nm: float = 0.0
 
 
 class Emcy(NamedTuple):
@@ -95,8 +86,8 @@ class NodeFirmware:
         self.emcy.clear()  # a reset drops what was queued
         self.error = NodeError.NONE
         self.latched = False
-        self.pending: DriveCommand | None = None
-        self.active: DriveCommand | None = None
+        self.pending: JointCommand | None = None
+        self.active: JointCommand | None = None
         self.missed_ticks = 0
         self.command_this_tick = False
         self.last_heartbeat_ms: float | None = None
@@ -131,7 +122,7 @@ class NodeFirmware:
             self.ignored += 1
             return
         lim = self.limits
-        clamped = DriveCommand(
+        clamped = JointCommand(
             _MODE[mode],
             min(max(position, lim.lower_rad), lim.upper_rad),
             min(max(velocity, -lim.velocity_rad_s), lim.velocity_rad_s),
@@ -165,17 +156,17 @@ class NodeFirmware:
             age = int(min(now_ms - self.last_heartbeat_ms, 0xFFFF))
             self.raise_fault(NodeError.HEARTBEAT_LOST, EmcyCode.HEARTBEAT_LOST, ERR_GENERIC | ERR_COMMUNICATION, age)
 
-    def on_sync(self) -> DriveCommand:
+    def on_sync(self) -> JointCommand:
         """Apply the newest command received since the last SYNC; the drive command until the next."""
         if self.pending is not None and self.state == NmtState.OPERATIONAL and not self.latched:
             self.active, self.pending = self.pending, None
         return self.drive_command()
 
-    def drive_command(self) -> DriveCommand:
+    def drive_command(self) -> JointCommand:
         if self.latched:
-            return DriveCommand(JointMode.QUICK_STOP, torque_limit_nm=self.limits.torque_nm)
+            return JointCommand(JointMode.QUICK_STOP, torque_limit_nm=self.limits.torque_nm)
         if self.state != NmtState.OPERATIONAL or self.active is None:
-            return DriveCommand(JointMode.HOLD, torque_limit_nm=self.limits.torque_nm)
+            return JointCommand(JointMode.HOLD, torque_limit_nm=self.limits.torque_nm)
         return self.active
 
     @property

@@ -38,11 +38,12 @@ import numpy as np
 from config import Config
 from config.errors import AiderError
 from nodes.faults import FaultInjector
-from nodes.firmware import ERR_CURRENT, ERR_GENERIC, DriveCommand, JointLimits, NodeFirmware
+from nodes.firmware import ERR_CURRENT, ERR_GENERIC, JointLimits, NodeFirmware
 from protocol.bus import send_of
 from protocol.catalog import MessageSpec
 from protocol.clock import MAX_STALLS, STALL_NS, TICK_MS, TICK_NS, Clock, MonotonicClock
 from protocol.codec import Codec, Decoded
+from protocol.commands import JointCommand
 from protocol.e2e import Receiver, Transmitter
 from protocol.enums import WALKING, DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
 from protocol.errors import EncodeError
@@ -297,7 +298,7 @@ class NodesHost:
         if self.fall_at is None and self.patient.fall:
             self.fall_at = {"sync_tick": self.last_sync_tick, "sim_time_s": round(self.patient.t, 3)}
 
-    def _apply(self, port: NodePort, cmd: DriveCommand) -> None:
+    def _apply(self, port: NodePort, cmd: JointCommand) -> None:
         exo = self.world.exo
         q = float(self.reading.joint_position_rad[port.joint])
         # The joint interface checks again at its boundary (and counts what it rejects).

@@ -9,7 +9,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from config import default_config_path, load_config
-from controller.envelope import Envelope, EnvelopeError, JointBounds, JointCommand
+from controller.envelope import Envelope, EnvelopeError, JointBounds
+from protocol.commands import JointCommand
 from protocol.enums import JointMode
 
 CFG = load_config(default_config_path()).controller.envelope  # margin 0.02, 4 rad/s, 0.08 rad/tick, 100 N.m

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from nodes.firmware import DriveCommand, JointLimits, NodeFirmware
+from nodes.firmware import JointLimits, NodeFirmware
+from protocol.commands import JointCommand
 from protocol.enums import DriveState, EmcyCode, JointMode, NmtCommand, NmtState, NodeError
 
 LIMITS = JointLimits(lower_rad=-0.5, upper_rad=2.0, velocity_rad_s=6.0, torque_nm=100.0)
@@ -15,7 +16,7 @@ def firmware(timeout_ticks: int = 3, heartbeat_ms: int = 300) -> NodeFirmware:
     return NodeFirmware("LEFT_KNEE", LIMITS, command_timeout_ticks=timeout_ticks, heartbeat_timeout_ms=heartbeat_ms)
 
 
-def tick(fw: NodeFirmware, k: int, *, command=None, heartbeat: bool = True) -> DriveCommand:
+def tick(fw: NodeFirmware, k: int, *, command=None, heartbeat: bool = True) -> JointCommand:
     """One lock-step tick: frames of the previous tick arrive, then the SYNC of tick ``k``."""
     if command is not None:
         fw.on_command(*command)
@@ -32,7 +33,7 @@ def test_boots_pre_operational_holding_and_ignores_commands_until_started():
     assert fw.ignored == 1 and fw.drive_state == DriveState.HOLD
     fw.on_nmt(NmtCommand.START, 20.0)
     assert fw.state == NmtState.OPERATIONAL
-    assert tick(fw, 1, command=TRACK) == DriveCommand(JointMode.TRACK, 0.3, 0.0, 5.0, 100.0)
+    assert tick(fw, 1, command=TRACK) == JointCommand(JointMode.TRACK, 0.3, 0.0, 5.0, 100.0)
     assert fw.drive_state == DriveState.TRACK
     fw.on_nmt(NmtCommand.STOP, 40.0)
     assert fw.state == NmtState.STOPPED and tick(fw, 2, command=TRACK).mode == JointMode.HOLD
@@ -94,7 +95,7 @@ def test_commands_beyond_the_limits_are_clamped_and_reported_once_per_run():
     fw = firmware()
     fw.on_nmt(NmtCommand.START, 0.0)
     out = tick(fw, 1, command=(int(JointMode.TRACK), 2.5, 9.0, -300.0, 250.0))
-    assert out == DriveCommand(JointMode.TRACK, 2.0, 6.0, -100.0, 100.0)
+    assert out == JointCommand(JointMode.TRACK, 2.0, 6.0, -100.0, 100.0)
     tick(fw, 2, command=(int(JointMode.TRACK), 2.4, 0.0, 0.0, 50.0))
     assert fw.clamped == 2 and [e.code for e in fw.emcy] == [EmcyCode.POSITION_LIMIT]
     assert fw.emcy[0].error_register == 0  # a warning, not a fault
