@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from protocol.catalog import DBC_PATH, default_catalog
 from protocol.codec import Codec, Decoded, RejectReason, Rejection
 from protocol.errors import EncodeError
-from tests.strategies import record
+from tests.support.strategies import record
 
 CATALOG = default_catalog()
 CODEC = Codec(CATALOG)

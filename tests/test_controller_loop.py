@@ -12,7 +12,7 @@ from controller.loop import LockstepLoop
 from nodes.host import NodesHost
 from protocol.bus import virtual_bus
 from protocol.enums import GaitState
-from tests.test_vcan_controller import stall_can_explain
+from tests.support.processes import stall_can_explain
 
 BASE = load_config(default_config_path())
 

@@ -92,3 +92,16 @@ def test_the_tick_is_defined_once_in_the_clock_module():
                             and any("tick" in n.lower() for n in names):
                         offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} {ast.unparse(node)}")
     assert not offenders, offenders
+
+
+def test_test_modules_import_no_other_test_module():
+    """Shared test helpers live in tests/support (and the fixtures in tests/conftest.py); a test
+    module never imports another one."""
+    offenders = []
+    for path in (ROOT / "tests").rglob("test_*.py"):
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("tests."):
+                if not node.module.startswith(("tests.support.", "tests.conftest")):
+                    offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} from {node.module}")
+    assert not offenders, offenders

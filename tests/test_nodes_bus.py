@@ -578,7 +578,7 @@ def test_any_controller_frame_sequence_is_handled_without_an_exception():
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
 
-    from tests.strategies import record
+    from tests.support.strategies import record
 
     codec = Codec()
     specs = [m for m in codec.catalog.messages if m.sender == "CONTROLLER"]

@@ -326,11 +326,11 @@ def test_bad_folders_and_channels_are_one_line_errors(tmp_path, capsys):
 
 def test_the_recorder_unit_writes_into_its_logs_directory_and_is_not_restarted_at_the_disk_floor():
     from tests.conftest import ROOT
-    from tests.test_deploy import _aider_argv, _unit
+    from tests.support.deploy import aider_argv, unit
 
-    unit = _unit(ROOT / "tools" / "deploy" / "aider-exo-record.service")
+    unit = unit(ROOT / "tools" / "deploy" / "aider-exo-record.service")
     service = unit["Service"]
-    argv = _aider_argv(service["ExecStart"])
+    argv = aider_argv(service["ExecStart"])
     assert argv[0] == "record" and argv[argv.index("--dir") + 1] == f"/var/log/{service['LogsDirectory']}"
     assert service["RestartPreventExitStatus"] == str(EXIT_DISK_FLOOR) and service["Restart"] == "on-failure"
     assert service["Type"] == "notify" and "aider-exo-controller.service" in unit["Unit"]["Before"]

@@ -26,7 +26,7 @@ from config import default_config_path, load_config
 from controller.faults import FaultKind as K
 from protocol.codec import Codec, RejectReason
 from protocol.enums import GaitState
-from protocol.faultbus import BusFault, ids_of
+from protocol.faultbus import BusFault
 from tools.safety.rig import FaultRig
 
 CFG = load_config(default_config_path())

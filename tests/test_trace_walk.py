@@ -6,16 +6,13 @@ plot read it. The run is recorded by the test, never a committed golden trace (t
 from __future__ import annotations
 
 import json
-import math
-import re
-import subprocess
-import sys
 
 import pytest
 
-from protocol.catalog import DBC_PATH, default_catalog
+from protocol.catalog import default_catalog
 from protocol.clock import TICK_S
 from protocol.codec import Codec
+from tests.support.capture import assert_cantools_agrees
 from tools.cli import main
 from tools.trace.decode import TraceDecoder
 from tools.trace.reader import ReadReport, read_frames
@@ -100,28 +97,6 @@ def test_resim_of_a_trace_without_sync_says_there_is_nothing_to_compare(tmp_path
     assert main(["trace", "resim", str(log)]) == 1
     out = capsys.readouterr()
     assert "nothing to compare" in out.out and "Traceback" not in out.err
-
-
-def assert_cantools_agrees(rows, candump_log_text):
-    """``cantools decode`` with our DBC gives our rows' messages, counters and values (labels for
-    enumerations); returns how many signals were compared."""
-    theirs = subprocess.run([sys.executable, "-m", "cantools", "decode", "--single-line", str(DBC_PATH)],
-                            input=candump_log_text, capture_output=True, text=True, timeout=300, check=True).stdout.splitlines()
-    assert len(theirs) == len(rows)
-    compared = 0
-    for row, line in zip(rows, theirs):
-        match = re.search(r" :: (\w+)\((.*)\)$", line)
-        assert match and match.group(1) == row.spec.name, line
-        values = dict(item.split(": ", 1) for item in match.group(2).split(", "))
-        assert int(values["e2e_counter"]) == row.counter
-        for sig, value in zip(row.spec.signals, row.values):
-            text = values[sig.name].split(" ")[0]
-            if sig.choices:
-                assert text == sig.choices[value], (row.spec.name, sig.name)
-            else:
-                assert math.isclose(float(text), value, abs_tol=1e-9), (row.spec.name, sig.name, text, value)
-            compared += 1
-    return compared
 
 
 def test_cantools_decode_agrees_with_ours_on_every_signal_of_the_walk(walk):

@@ -29,50 +29,23 @@ variant runs with the host tests.
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
-import sys
-import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
-import can
 import pytest
 
 from controller.faults import FaultKind
 from controller.loop import READ_WINDOW_S
-from protocol.clock import TICK_MS, MonotonicClock
 from protocol.codec import Codec, Decoded
-from protocol.e2e import Receiver
 from protocol.enums import GaitState
-from tests.conftest import ROOT, udp_group
-from tests.test_vcan_trace import PROBE_ID, candump
-from tools.pipeline import default_max_time_s
+from tests.conftest import ROOT
+from tests.support.capture import decode_capture
+from tests.support.processes import AIDER, fsm_transitions, recording, stall_can_explain, walk_two_processes
 
-AIDER = str(Path(sys.executable).with_name("aider-exo"))
 CYCLES = 10
 RT_CYCLES = 5
 SWINGS = {GaitState.SWING_LEFT: "l", GaitState.SWING_RIGHT: "r"}
 CODEC = Codec()
-
-
-def _recorded(path: Path) -> int:
-    return sum(m.arbitration_id != PROBE_ID for m in can.CanutilsLogReader(str(path)))
-
-
-def _decode_capture(path: Path) -> tuple[list[Decoded], Receiver]:
-    """candump's log through our DBC: every frame must decode, with no counter gap."""
-    receiver = Receiver(CODEC)
-    frames = [m for m in can.CanutilsLogReader(str(path)) if m.arbitration_id != PROBE_ID]
-    assert frames, "candump recorded nothing"
-    results = [receiver.receive(m) for m in frames]
-    rejected = [r for r in results if not isinstance(r, Decoded)]
-    assert not rejected, (len(rejected), rejected[:3])
-    assert receiver.stats.lost == 0 and receiver.stats.rejected_total == 0, receiver.stats.as_dict()
-    return results, receiver
-
-
 #: the controller's heartbeat period in ticks (from the DBC's cycle time)
 HEARTBEAT_TICKS = Codec().spec("CONTROLLER_HEARTBEAT").period_ticks
 
@@ -87,91 +60,6 @@ def _swings_on_the_bus(decoded: list[Decoded]) -> list[str]:
                 legs.append(SWINGS[state])
             previous = state
     return legs
-
-
-@contextmanager
-def udp_record(channel: str, path: Path) -> Iterator[None]:
-    """What candump does on vcan0, for a UDP multicast ``channel`` (group:port): every frame on it
-    from the block's start until its end, in candump's ``-L`` format, by a listener thread of this
-    process (joined to the group before the block starts; the file flushed per frame). At the end
-    a probe frame from another socket must come through, so every frame sent before it is in."""
-    from protocol.bus import UdpBus
-
-    group, port = udp_group(channel)
-    done = threading.Event()
-    with UdpBus(group, port) as listener, UdpBus(group, port) as probe, path.open("w") as out:
-        writer = can.CanutilsLogWriter(out, channel=channel)
-
-        def run() -> None:
-            while True:
-                msg = listener.recv(timeout=0.1)
-                if msg is None:
-                    if done.is_set():
-                        return
-                    continue
-                writer.on_message_received(msg)
-                out.flush()
-                if msg.arbitration_id == PROBE_ID:
-                    done.set()
-
-        thread = threading.Thread(target=run, name="udp-record", daemon=True)
-        thread.start()
-        try:
-            yield
-        finally:
-            probe.send(can.Message(arbitration_id=PROBE_ID, data=b"\xff", is_extended_id=False))
-            thread.join(timeout=30)
-    assert not thread.is_alive() and done.is_set(), "the UDP recorder did not catch up"
-
-
-def _recording(interface: str, channel: str, log: Path):
-    return candump(channel, log) if interface == "socketcan" else udp_record(channel, log)
-
-
-def _walk_two_processes(interface: str, channel: str, log: Path, cycles: int, *, lockstep: bool,
-                        config: Path | None = None) -> tuple[dict, dict]:
-    """``aider-exo nodes`` and ``aider-exo controller --cycles N`` on ``interface`` (socketcan or
-    udp_multicast) and ``channel``, recorded (candump, or :func:`udp_record`); checks both exit
-    cleanly and returns their JSON summaries."""
-    mode = ["--lockstep"] if lockstep else []
-    bus = ["--bus", interface, "--channel", channel] + (["--config", str(config)] if config else [])
-    with _recording(interface, channel, log):
-        nodes = subprocess.Popen(
-            [AIDER, "nodes", *bus, *mode, "--mode", "sagittal", "--json", "--quiet"],
-            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        )
-        try:
-            # The nodes first (their four boot-ups on the bus, seen by candump), then the controller.
-            clock = MonotonicClock()
-            deadline = clock.now_ns() + 120_000_000_000  # a hang guard only
-            while (booted := _recorded(log)) < 4 and nodes.poll() is None and clock.now_ns() < deadline:
-                clock.sleep_until(clock.now_ns() + 100_000_000)
-            assert booted >= 4, f"the nodes did not boot (exit status {nodes.poll()})"
-            # Real time: a walk that stalls ends at the walk command's limit (lock-step: the hang guard).
-            limit = [] if lockstep else ["--ticks", str(int(default_max_time_s(cycles) * 1000 / TICK_MS))]
-            ctl = subprocess.run(
-                [AIDER, "controller", *bus, *mode, "--cycles", str(cycles),
-                 *limit, "--json", "--quiet"],
-                check=False, cwd=ROOT, capture_output=True, text=True, timeout=900,  # a hang guard only (the walk took 166-299 s in the sandbox)
-            )
-        finally:
-            nodes.send_signal(signal.SIGTERM)
-            nodes_out, nodes_err = nodes.communicate(timeout=120)
-    assert ctl.returncode == 0, ctl.stderr
-    assert nodes.returncode == 0, nodes_err
-    return json.loads(ctl.stdout), json.loads(nodes_out)
-
-
-def _transitions(events: list[str]) -> list[tuple[int, str, str, str]]:
-    """The FSM's transitions in a summary's events: (tick, source, target, cause)."""
-    out = []
-    for e in events:
-        head, _, rest = e.partition(": ")
-        if " -> " in rest:
-            states, _, cause = rest.partition(": ")
-            source, _, target = states.partition(" -> ")
-            out.append((int(head.removeprefix("tick ")), source, target, cause))
-    return out
 
 
 def _check_walk(summary: dict, final: dict, cycles: int, node_errors: set[str] = frozenset({"NONE"})) -> None:
@@ -196,7 +84,7 @@ def _check_capture(log: Path, summary: dict) -> list[int]:
     """candump's capture of the whole run: no CRC, counter or length error, the nodes' boot-ups
     first, every SYNC in order, a status per SYNC, and the controller's swings on the bus.
     Returns the SYNCs' ticks."""
-    decoded, receiver = _decode_capture(log)
+    decoded, receiver = decode_capture(log)
     assert [d.name for d in decoded[:4]] == ["HEARTBEAT_LH", "HEARTBEAT_LK", "HEARTBEAT_RH", "HEARTBEAT_RK"]
     syncs = [d.values.tick for d in decoded if d.name == "SYNC"]
     # Real time skips the ticks an overrun passed over; they are never sent late.
@@ -215,7 +103,7 @@ def _check_capture(log: Path, summary: dict) -> list[int]:
 @pytest.mark.vcan
 def test_controller_walks_ten_gait_cycles_over_vcan0_with_the_nodes_as_a_second_process(vcan0, tmp_path):
     log = tmp_path / "candump.log"
-    summary, final = _walk_two_processes("socketcan", vcan0, log, CYCLES, lockstep=True)
+    summary, final = walk_two_processes("socketcan", vcan0, log, CYCLES, lockstep=True)
     _check_walk(summary, final, CYCLES)
     assert summary["timeouts"] == 0
     assert final["syncs"] == summary["ticks"]
@@ -231,13 +119,8 @@ def test_controller_walks_ten_gait_cycles_over_vcan0_with_the_nodes_as_a_second_
 # ENCODER_STUCK too: a nodes process stalled 60 ms sends one encoder value for three ticks (seen
 # once in the sandbox on 2026-12-05: ENCODER_STUCK(RIGHT_KNEE) at tick 154, a nodes stall of 59.6
 # ms at tick 154); it is retried only with such a stall as evidence, as the others are. Which kinds
-# a stall can explain is the kinds' own data (controller/faults.py, docs/FAULTS.md).
-
-
-def stall_can_explain(cause: str) -> bool:
-    """Whether a printed cause is a fault of a kind that a stall of this machine can explain."""
-    kind = FaultKind.of(cause)
-    return kind is not None and kind.stall_can_explain
+# a stall can explain is the kinds' own data (controller/faults.py, docs/FAULTS.md;
+# tests/support/processes.py's stall_can_explain).
 # Two attempts: each stalled one costs about 75 s of the suite's 20-minute budget (a fresh clone's
 # make test took 20.6 min on 2026-12-03 with three, all stalled).
 RT_ATTEMPTS = 2
@@ -255,7 +138,7 @@ def _stall_evidence(summary: dict, final: dict, log: Path, tick: int, cause: str
     first = tick - (50 if FaultKind.of(cause) is FaultKind.OVERRUN else 10)
     evidence = [f"controller stall {s}" for s in summary["stalls"] if first <= s[0] <= tick]
     evidence += [f"nodes stall {s}" for s in final["stalls"] if first <= s[0] < tick]
-    decoded, _ = _decode_capture(log)
+    decoded, _ = decode_capture(log)
     syncs = {d.values.tick: d.timestamp for d in decoded if d.name == "SYNC"}
     for name in (CODEC.catalog.message("JOINT_STATUS", n).name for n in CODEC.catalog.joint_nodes):
         answers = [d.timestamp for d in decoded if d.name == name]
@@ -288,10 +171,10 @@ def test_controller_walks_five_gait_cycles_in_real_time_as_two_processes(interfa
     stalled = []
     for attempt in range(1, RT_ATTEMPTS + 1):
         log = tmp_path / f"capture-{attempt}.log"
-        summary, final = _walk_two_processes(interface, channel, log, RT_CYCLES, lockstep=False)
+        summary, final = walk_two_processes(interface, channel, log, RT_CYCLES, lockstep=False)
         assert summary["mode"] == "realtime" and final["mode"] == "realtime"
         _check_capture(log, summary)  # whatever happened, what is on the bus is whole and in order
-        stops = [t for t in _transitions(summary["events"]) if t[2] in ("FAULT", "HOLD")]
+        stops = [t for t in fsm_transitions(summary["events"]) if t[2] in ("FAULT", "HOLD")]
         if not stops:
             assert summary["steps_completed"] == 2 * RT_CYCLES, (
                 f"attempt {attempt} made no progress: {summary['steps_completed']} steps in {summary['ticks']} ticks, "
@@ -316,7 +199,7 @@ def test_walk_command_starts_the_nodes_process(interface, request, tmp_path):
     channel = request.getfixturevalue("vcan0" if interface == "socketcan" else "udp_multicast")
     log = tmp_path / "capture.log"
     steps = 2
-    with _recording(interface, channel, log):
+    with recording(interface, channel, log):
         walk = subprocess.run(
             [AIDER, "walk", "--bus", interface, "--channel", channel, "--steps", str(steps), "--json", "--quiet"],
             check=False, cwd=ROOT, capture_output=True, text=True, timeout=400,  # a hang guard only (21-92 s in the sandbox)
@@ -332,7 +215,7 @@ def test_walk_command_starts_the_nodes_process(interface, request, tmp_path):
     assert s["x_ratio_samples"] >= 0.8 * s["ticks"]
     assert s["x_ratio_mae"] is not None and s["x_ratio_mae"] <= 0.05
 
-    decoded, _ = _decode_capture(log)
+    decoded, _ = decode_capture(log)
     syncs = [d.values.tick for d in decoded if d.name == "SYNC"]
     assert syncs == list(range(s["ticks"]))
     # The controller starts at once and its first SYNCs go out while the nodes process starts up:

@@ -50,8 +50,8 @@ from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver
 from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
 from tests.conftest import ROOT
-from tests.test_vcan_controller import AIDER, _decode_capture, _recorded, _transitions, stall_can_explain
-from tests.test_vcan_trace import PROBE_ID, candump
+from tests.support.capture import PROBE_ID, candump, decode_capture, recorded
+from tests.support.processes import AIDER, fsm_transitions, stall_can_explain
 
 pytestmark = pytest.mark.vcan
 
@@ -194,7 +194,7 @@ def _boot(vcan0: str, log: Path, *extra: str) -> subprocess.Popen:
     nodes = _nodes(vcan0, *extra)
     clock = MonotonicClock()
     deadline = clock.now_ns() + 120_000_000_000  # a hang guard only
-    while (booted := _recorded(log)) < 4 and nodes.poll() is None and clock.now_ns() < deadline:
+    while (booted := recorded(log)) < 4 and nodes.poll() is None and clock.now_ns() < deadline:
         clock.sleep_until(clock.now_ns() + 100_000_000)
     if booted < 4:
         _reap(nodes)
@@ -294,11 +294,11 @@ def test_killed_nodes_process_faults_the_controller_within_4_ticks_and_it_holds(
         summary = _stop(ctl)
     assert nodes.returncode == -signal.SIGKILL
 
-    decoded, _ = _decode_capture(log)  # no CRC, counter or length error, no frame lost
+    decoded, _ = decode_capture(log)  # no CRC, counter or length error, no frame lost
     ticks = _sync_ticks(decoded)
     node_frames = [i for i, d in enumerate(decoded) if d.message.sender in NODES]
     last_node_tick = ticks[node_frames[-1]]  # the SYNC after which no node frame came
-    transitions = _transitions(summary["events"])
+    transitions = fsm_transitions(summary["events"])
     faults = [t for t in transitions if t[2] == "FAULT"]
     assert faults, summary["events"][-5:]
     fault_tick, source, _, cause = faults[0]
@@ -433,7 +433,7 @@ def _reset_disrupted(summary: dict, log: Path) -> str | None:
     that, with the stall measured or a node's new watchdog EMCY after its clear, counts here."""
     if any(e.endswith("-> STAND: operator reset") for e in summary["events"]):
         return None
-    decoded, _ = _decode_capture(log)
+    decoded, _ = decode_capture(log)
     cleared, relatched = set(), []
     for t, d in zip(_sync_ticks(decoded), decoded):
         if d.message.family != "EMCY":
@@ -455,7 +455,7 @@ def test_killed_controller_nodes_quick_stop_and_hold(vcan0, tmp_path_factory, cr
     r = crash(vcan0, tmp_path_factory.mktemp("crash"))
     assert r["killed_rc"] == -signal.SIGKILL
     msgs = [m for m in can.CanutilsLogReader(str(r["logs"]["kill"])) if m.arbitration_id != PROBE_ID]
-    decoded, _ = _decode_capture(r["logs"]["kill"])  # no CRC, counter or length error, no frame lost
+    decoded, _ = decode_capture(r["logs"]["kill"])  # no CRC, counter or length error, no frame lost
     assert len(decoded) == len(msgs)
     last_ctl = max(i for i, d in enumerate(decoded) if d.message.sender == "CONTROLLER")
     last_state = next(GaitState(d.values.gait_state) for d in reversed(decoded[:last_ctl + 1]) if d.name == "CONTROLLER_HEARTBEAT")
@@ -498,7 +498,7 @@ def test_killed_controller_nodes_quick_stop_and_hold(vcan0, tmp_path_factory, cr
     # at the last status before the kill (mid-swing: the joints moved on until the quick stop
     # latched them, 3-4 ticks later; 0.001-0.049 rad measured), then held through its 150 ticks.
     before = {d.message.sender: d.values for d in decoded[:last_ctl] if d.message.family == "JOINT_STATUS"}
-    restart, _ = _decode_capture(r["logs"]["restart"])
+    restart, _ = decode_capture(r["logs"]["restart"])
     held: dict[str, list] = {}
     for d in restart:
         if d.message.family == "JOINT_STATUS":
@@ -529,15 +529,15 @@ def test_restarted_controller_starts_and_stays_in_fault_without_an_operator_rese
     """F22/I4: against the latched nodes, 150 ticks in FAULT, no TRACK command, no reset sent."""
     r = crash(vcan0, tmp_path_factory.mktemp("crash"))
     s = r["restart"]
-    transitions = _transitions(s["events"])
-    print(f"\nF22 without reset: {transitions}, commands {dict(_commands(_decode_capture(r['logs']['restart'])[0]))}")
+    transitions = fsm_transitions(s["events"])
+    print(f"\nF22 without reset: {transitions}, commands {dict(_commands(decode_capture(r['logs']['restart'])[0]))}")
     assert s["ticks"] == 150 and s["final_state"] == "FAULT" and s["resets"] == []
     assert len(transitions) == 1, transitions
     tick, source, target, cause = transitions[0]
     assert (source, target) == ("INIT", "FAULT") and cause.startswith("DRIVE_FAULT("), transitions
     assert tick <= 5  # at its first statuses
     assert s["steps"] == []
-    decoded, _ = _decode_capture(r["logs"]["restart"])
+    decoded, _ = decode_capture(r["logs"]["restart"])
     assert set(_commands(decoded)) == {"HOLD"}
     nmt = [NmtCommand(d.values.command) for d in decoded if d.name == "NMT_COMMAND"]
     assert NmtCommand.FAULT_RESET not in nmt, nmt
@@ -553,8 +553,8 @@ def test_restarted_controller_leaves_fault_only_on_the_operators_reset_and_does_
     if len(r["reset_retried"]) == ATTEMPTS:
         pytest.skip(f"every reset phase was disrupted by a stall of the machine: {r['reset_retried']}")
     s = r["reset"]
-    transitions = _transitions(s["events"])
-    decoded, _ = _decode_capture(r["logs"]["reset"])
+    transitions = fsm_transitions(s["events"])
+    decoded, _ = decode_capture(r["logs"]["reset"])
     print(f"\nF22 with --reset: resets at ticks {s['resets']}, {transitions}, commands {dict(_commands(decoded))}"
           f"{', after ' + '; '.join(r['reset_retried']) if r['reset_retried'] else ''}")
     assert s["ticks"] == 150
@@ -724,7 +724,7 @@ def test_cangen_random_flood_colliding_with_our_ids_during_a_lockstep_walk(vcan0
     assert per_tick.count(0) <= 0.1 * len(per_tick) and collisions["bad_crc"] > 0
     for who, rxd in (("controller", summary["receiver"]), ("nodes", final["receiver"])):
         assert rxd["rejected_by_reason"].get("unknown_id", 0) > 0 and rxd["rejected_by_reason"].get("bad_crc", 0) > 0, (who, rxd)
-    faults = [t for t in _transitions(summary["events"]) if t[2] in ("FAULT", "HOLD")]
+    faults = [t for t in fsm_transitions(summary["events"]) if t[2] in ("FAULT", "HOLD")]
     if not faults:
         _check_walked(summary, final)
         return

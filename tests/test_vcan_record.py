@@ -25,7 +25,7 @@ import pytest
 from protocol.clock import MonotonicClock
 from protocol.codec import Codec
 from tests.conftest import ROOT
-from tests.test_vcan_trace import PROBE_ID, _read, candump
+from tests.support.capture import PROBE_ID, candump, read_log
 from tools.cli.record import FAKE_FREE_ENV
 from tools.trace.record import TraceWriter
 from tools.trace.session import EXIT_DISK_FLOOR, session_files
@@ -39,7 +39,7 @@ def _trace(path: Path, ticks: int, channel: str) -> list:
     for frame in lockstep_frames(Codec(), ticks, channel=channel):
         writer.write(frame.to_message())
     writer.close({})
-    return _read(path)
+    return read_log(path)
 
 
 def _start_recorder(channel: str, folder: Path, *extra: str, env: dict | None = None) -> subprocess.Popen:
@@ -69,7 +69,7 @@ def _holds(folder: Path, text: str) -> bool:
 
 def _read_all(paths) -> list:
     """The frames of ``paths`` in order, each file read whole (no skipped line, no problem)."""
-    return [f for p in paths for f in _read(p)]
+    return [f for p in paths for f in read_log(p)]
 
 
 def _key(f):
@@ -105,7 +105,7 @@ def test_every_frame_candump_saw_is_in_exactly_one_rotated_file(vcan0, tmp_path)
     assert not list(folder.glob("*.part")) and all(p.stat().st_size <= 6000 for p in files)
 
     recorded = [f for f in _read_all(files) if f.arbitration_id != PROBE_ID]  # each file whole, read in order
-    dumped = [f for f in _read(dump) if f.arbitration_id != PROBE_ID]
+    dumped = [f for f in read_log(dump) if f.arbitration_id != PROBE_ID]
     assert [_key(f) for f in dumped] == [_key(f) for f in sent]  # the witness saw the whole trace
     assert [_key(f) for f in recorded] == [_key(f) for f in dumped]  # each exactly once, in order
     offsets = [abs(a.timestamp - b.timestamp) for a, b in zip(recorded, dumped)]

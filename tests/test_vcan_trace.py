@@ -16,22 +16,16 @@ from __future__ import annotations
 
 import json
 import math
-import signal
 import subprocess
-from contextlib import contextmanager
 
-import can
 import numpy as np
 import pytest
 
-from protocol.bus import RECEIVE_BUFFER_BYTES
-from protocol.clock import MonotonicClock
 from protocol.codec import Codec
-from tests.test_trace_walk import assert_cantools_agrees
+from tests.support.capture import PROBE_ID, assert_cantools_agrees, candump, read_log
 from tools.buscheck import expected_record
 from tools.cli import main
 from tools.trace.decode import TraceDecoder
-from tools.trace.reader import ReadReport, read_frames
 from tools.trace.record import TraceWriter
 from tools.trace.synthetic import lockstep_frames
 
@@ -45,46 +39,8 @@ def _relative(times):
     return t - t[0]
 
 
-def _read(path):
-    report = ReadReport()
-    frames = list(read_frames([path], report))
-    assert report.skipped == 0 and not report.problems, report
-    return frames
-
-
-PROBE_ID = 0x7FF  # not in the DBC: sent until candump shows it listens, then left out
-
-
-@contextmanager
-def candump(channel, path):
-    """``candump -L channel > path`` from the moment it listens until the block ends, and until it
-    has written every frame sent before the end: a last probe frame (frames arrive in order) must
-    be in the file before candump is stopped (in the slow sandbox it can be a few frames behind)."""
-    clock = MonotonicClock()
-    with path.open("w") as out:
-        # Our sockets' receive buffer for candump's too: with the kernel's default it dropped 93
-        # frames of a flood while the guest was slow, and the witness must see every frame.
-        proc = subprocess.Popen(["candump", "-L", "-r", str(RECEIVE_BUFFER_BYTES), channel], stdout=out, stderr=subprocess.PIPE)
-        try:
-            with can.Bus(interface="socketcan", channel=channel, ignore_config=True) as probe:
-                deadline = clock.now_ns() + 20_000_000_000
-                while path.stat().st_size == 0:
-                    assert clock.now_ns() < deadline, "candump did not start"
-                    probe.send(can.Message(arbitration_id=PROBE_ID, data=b"", is_extended_id=False))
-                    clock.sleep_until(clock.now_ns() + 50_000_000)
-                yield
-                probe.send(can.Message(arbitration_id=PROBE_ID, data=b"\xff", is_extended_id=False))
-                deadline = clock.now_ns() + 20_000_000_000
-                while f"{PROBE_ID:03X}#FF" not in path.read_text():
-                    assert clock.now_ns() < deadline, "candump did not catch up"
-                    clock.sleep_until(clock.now_ns() + 20_000_000)
-        finally:
-            proc.send_signal(signal.SIGINT)
-            proc.wait(timeout=30)
-
-
 def _dumped(path):
-    return [f for f in _read(path) if f.arbitration_id != PROBE_ID]
+    return [f for f in read_log(path) if f.arbitration_id != PROBE_ID]
 
 
 def _same_frames(a, b):
@@ -107,7 +63,7 @@ def test_record_canplayer_candump_replay_and_cantools_agree_over_vcan0(vcan0, tm
     for frame in lockstep_frames(codec, TICKS, channel=vcan0):
         writer.write(frame.to_message())
     writer.close({})
-    sent = _read(trace)
+    sent = read_log(trace)
 
     # 1. `aider-exo trace record` records vcan0 (kernel receive timestamps) while canplayer plays
     #    the trace (started once the recorder has had time to listen).
@@ -121,7 +77,7 @@ def test_record_canplayer_candump_replay_and_cantools_agree_over_vcan0(vcan0, tm
     meta = json.loads(capsys.readouterr().out)
     assert meta["frames"] == len(sent) and meta["source"] == {"kind": "bus", "ended_by": "count"}
     assert meta["bus"] == {"interface": "socketcan", "channel": vcan0} and meta["parts"] == [recording.name]
-    recorded = _read(recording)
+    recorded = read_log(recording)
     _same_frames(recorded, sent)
     _assert_same_timing(recorded, sent)
 

@@ -413,7 +413,8 @@ def test_the_view_watches_a_walk_over_vcan0_and_sends_nothing(vcan0, tmp_path):
     import subprocess
 
     from tests.conftest import ROOT
-    from tests.test_vcan_controller import AIDER, _recorded, _walk_two_processes
+    from tests.support.capture import recorded
+    from tests.support.processes import AIDER, walk_two_processes
 
     view = subprocess.Popen([AIDER, "view", "--bus", "socketcan", "--channel", vcan0, "--port", "0", "--json"],
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -421,13 +422,13 @@ def test_the_view_watches_a_walk_over_vcan0_and_sends_nothing(vcan0, tmp_path):
         started = view.stderr.readline()  # "aider-exo view: socketcan:vcan0 at http://127.0.0.1:PORT/ (Ctrl-C stops)"
         assert " at http://127.0.0.1:" in started, started + view.stderr.read()
         log = tmp_path / "candump.log"
-        summary, nodes = _walk_two_processes("socketcan", vcan0, log, 1, lockstep=True)
+        summary, nodes = walk_two_processes("socketcan", vcan0, log, 1, lockstep=True)
     finally:
         view.send_signal(signal.SIGINT)
         out, err = view.communicate(timeout=60)
     assert view.returncode == 0, err
     seen = json.loads(out)
-    recorded = _recorded(log)
+    recorded = recorded(log)
     assert summary["steps_completed"] == 2
     assert recorded == summary["frames_sent"] + nodes["frames_sent"]  # nothing on the bus but the walk's frames
     assert seen["sends_refused"] == 0 and seen["reader_error"] is None
