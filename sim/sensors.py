@@ -25,7 +25,7 @@ def contact_force_on_robot(cp: tuple) -> np.ndarray:
 
     The normal force acts along ``contactNormalOnB`` (B towards A); the reported lateral friction
     forces act on A *against* their direction vectors (checked against static equilibrium of the
-    joint torques in tests/test_sim_kinematics.py).
+    joint torques in tests/sim/test_sim_kinematics.py).
     """
     n, (nx, ny, nz), f1, (ax, ay, az), f2, (bx, by, bz) = cp[9], cp[7], cp[10], cp[11], cp[12], cp[13]
     # in floats, the arithmetic of the numpy expression n * normal - f1 * dir1 - f2 * dir2, per component

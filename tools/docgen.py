@@ -2,7 +2,7 @@
 
 A document marks a block with ``<!-- generated: NAME ... -->`` and ``<!-- /generated: NAME -->``;
 ``python -m tools.docgen --update FILE...`` (``make docs``) rewrites what lies between the two
-from :data:`BLOCKS`, and ``--check`` (``tests/test_docs_generated.py``) fails on a stale block.
+from :data:`BLOCKS`, and ``--check`` (``tests/unit/test_docs_generated.py``) fails on a stale block.
 The prose around a block is written by hand and quotes no figure of its own.
 
 * docs/FIRMWARE.md: CRC-8 test vectors, every message's Data ID, CRC seed and an example frame,
@@ -70,7 +70,7 @@ def can_link_settings(unit: Path = CAN_UNIT) -> dict[str, str]:
 # -- CRC-8 ---------------------------------------------------------------------------------------
 
 #: Inputs whose CRC the page lists: the standard check input, the empty input, and AUTOSAR's
-#: published CRC-8 SAE J1850 vectors (SWS CRC Library; tests/test_docs_generated.py holds their values).
+#: published CRC-8 SAE J1850 vectors (SWS CRC Library; tests/unit/test_docs_generated.py holds their values).
 CRC_INPUTS: tuple[tuple[str, bytes], ...] = (
     ('ASCII "123456789" (the standard check value)', b"123456789"),
     ("empty (the final XOR of the initial value)", b""),

@@ -21,7 +21,7 @@
  * arch_prctl(ARCH_REQ_XCOMP_PERM) on the host, which UML's processes never
  * ask for. The XSAVE header UML passes (xstate_bv) marks it unused, so the
  * zeros are read as its init state and nothing UML knows of changes (AVX-512
- * registers kept across preemption: checked by tests/test_vcan_run.py).
+ * registers kept across preemption: checked by tests/bus/test_vcan_run.py).
  * Every other ptrace call passes through unchanged.
  *
  * Build: cc -O2 -shared -fPIC -o uml-xstate.so uml-xstate.c -ldl

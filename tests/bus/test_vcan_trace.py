@@ -6,7 +6,7 @@ candump sees the same frames with the same timing. Our replay sends the recordin
 live nodes) while candump captures them. We decode candump's log, every value as sent, and
 ``cantools decode`` with our DBC agrees with our decode on every signal. The traffic is the
 protocol's schedule made up from the DBC (no simulation in the sandbox, whose CPU is several
-times slower; the same agreement on a recorded walking run is tests/test_trace_walk.py). The
+times slower; the same agreement on a recorded walking run is tests/bus/test_trace_walk.py). The
 timing bounds are loose on purpose: the sandbox's one slow CPU runs everything at once.
 
 Run through the vcan sandbox (``make test`` does: ``tools/vcan-run -- pytest -m vcan``).

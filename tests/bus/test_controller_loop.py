@@ -122,7 +122,7 @@ def test_real_time_controller_and_real_time_nodes_hold_the_hhea_up(request):
 def _stopped_by_a_stall(loop, nodes: dict) -> bool:
     """The run's first FAULT or HOLD is one a stall gives a healthy run (a lost node, a lost sensor,
     overruns) and either side measured a stall: this VM's hypervisor takes a CPU away in bursts
-    (tests/test_vcan_controller.py), which a real-time test retries rather than fails on."""
+    (tests/bus/test_vcan_controller.py), which a real-time test retries rather than fails on."""
     stops = [e for e in loop.report.events if "-> FAULT:" in e or "-> HOLD:" in e]
     return bool(stops) and stall_can_explain(stops[0].split(": ", 1)[1]) \
         and bool(loop.report.stalls or [s for s in nodes["stalls"] if s[0] >= 0])
@@ -166,7 +166,7 @@ def test_real_time_controller_walks_two_gait_cycles_with_real_time_nodes():
     cycles, no FAULT, no fall. Nothing here asserts a time; the overruns of both sides are in the
     failure message, as a machine too loaded to keep up would show them. A walk stopped by a lost
     node or overruns is tried again (at most 3 walks) only when either side measured a stall
-    (tests/test_vcan_controller.py: this VM's hypervisor takes a CPU away in bursts)."""
+    (tests/bus/test_vcan_controller.py: this VM's hypervisor takes a CPU away in bursts)."""
     cycles = 2
     stalled = []
     for attempt in range(1, 4):

@@ -16,6 +16,7 @@ import pytest
 
 from config import default_config_path, load_config, with_overrides
 from controller.compensation import StepBounds
+from tests.conftest import ROOT
 from tools.cli import main
 from tools.experiment import experiment, runner
 from tools.experiment.compare import GaitStats, compare_jobs
@@ -51,7 +52,7 @@ def parallel(tmp_path_factory) -> tuple[Path, dict]:
     done = subprocess.run(
         [sys.executable, "-m", "tools.cli", "experiment", "learn", "--out", str(out), "--workers", "2", "--updates", "1",
          "--evaluation-walks", "2", *sets, "--json", "--quiet"],
-        check=False, capture_output=True, text=True, timeout=600, cwd=Path(__file__).resolve().parents[1],
+        check=False, capture_output=True, text=True, timeout=600, cwd=ROOT,
     )
     assert done.returncode == 0, done.stderr
     return out, json.loads(done.stdout)

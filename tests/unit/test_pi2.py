@@ -5,7 +5,6 @@ from __future__ import annotations
 import ast
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,8 +22,8 @@ from controller.pi2 import (
     pibb_update,
     rollout_cost,
 )
+from tests.conftest import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 
 #: The learner's settings for the toy task of this file (a quadratic cost with its optimum at the
 #: paper's alpha -8.4, Xhat 0.80 and a fall past a boundary; starts A and B of the paper's Table II,

@@ -19,7 +19,7 @@ from sim.world import GRAVITY, World
 from tools.cli import main
 
 # the steady patient (one placement every step): these tests are of the gait's physics; the
-# default, noisy one is the experiments' (tests/test_experiment.py)
+# default, noisy one is the experiments' (tests/sim/test_experiment.py)
 SIM = with_overrides(load_config(default_config_path()), {"sim.mode": "sagittal", "sim.patient.intention.regime": "steady"}).sim
 
 

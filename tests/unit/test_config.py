@@ -8,7 +8,7 @@ import os
 import pickle
 import re
 from dataclasses import dataclass
-from pathlib import Path
+from tests.conftest import ROOT
 from typing import Literal, Optional
 
 import pytest
@@ -284,7 +284,7 @@ def test_default_config_path_points_into_the_package():
     path = default_config_path()
     assert path.is_absolute()
     assert path.name == "default.yaml"
-    assert path.parent == Path(__file__).resolve().parent.parent / "config"
+    assert path.parent == ROOT / "config"
 
 
 def test_load_config_accepts_str_path():

@@ -5,7 +5,7 @@ before it opens the bus (so before any node can be started or a drive enabled), 
 names the file and the dotted key (or, for YAML syntax errors and tags, the line); safety parameters
 have no silent defaults; YAML tags are never executed.
 
-``tests/test_config.py`` covers the generic loader on a small three-section file. Here every variant
+``tests/unit/test_config.py`` covers the generic loader on a small three-section file. Here every variant
 is a small edit of the real ``config/default.yaml`` (safety keys of the controller, the envelope, the
 node watchdogs, the simulated hardware), checked twice: through :func:`config.load_config` and through
 the real ``aider-exo controller`` / ``aider-exo nodes`` processes.

@@ -20,7 +20,9 @@ from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "tools" / "vcan-run"
+from tests.conftest import ROOT
+
+SCRIPT = ROOT / "tools" / "vcan-run"
 TIMEOUT = 120
 FIX_HINT = (
     "fixes: sudo modprobe vcan && sudo ip link add dev vcan0 type vcan && "

@@ -2,7 +2,7 @@
 virtual bus and a manual clock: rotation by size and by age, names never reused, ``.part`` until
 finished, ``--keep``, the free-disk floor through an injected probe, every frame in exactly one
 file in order, the exit statuses and the one-line errors. The same over a real vcan0 with candump
-as the witness: tests/test_vcan_record.py."""
+as the witness: tests/bus/test_vcan_record.py."""
 
 from __future__ import annotations
 

@@ -105,3 +105,13 @@ def test_test_modules_import_no_other_test_module():
                 if not node.module.startswith(("tests.support.", "tests.conftest")):
                     offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} from {node.module}")
     assert not offenders, offenders
+
+
+def test_every_test_module_is_in_the_folder_of_its_kind():
+    """tests/unit (no physics, no real bus), tests/sim (PyBullet walks), tests/bus (transports,
+    processes on a bus, the view), tests/realtime (the wall clock alone), tests/support (helpers)."""
+    kinds = {"unit", "sim", "bus", "realtime"}
+    modules = list((ROOT / "tests").rglob("test_*.py"))
+    assert modules and all(p.parent.parent == ROOT / "tests" and p.parent.name in kinds for p in modules), \
+        [str(p.relative_to(ROOT)) for p in modules if p.parent.name not in kinds]
+    assert not list((ROOT / "tests" / "support").glob("test_*.py"))

@@ -1,6 +1,6 @@
 """``aider-exo record`` over a real SocketCAN vcan0, candump (can-utils) as the independent witness.
 
-canplayer plays the protocol's lock-step schedule (made up from the DBC, as tests/test_vcan_trace.py
+canplayer plays the protocol's lock-step schedule (made up from the DBC, as tests/bus/test_vcan_trace.py
 does) onto vcan0 while the recorder runs as its own process with a small ``--max-bytes`` and
 ``candump -L`` captures beside it: every frame candump saw is in exactly one finished file, in
 order, with the same kernel timestamp to the microsecond or near it. Then a tiny disk (the free

@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +12,7 @@ import pytest
 from controller.timing import TickStats, quantile_interval
 from protocol import realtime as timing
 from protocol.realtime import realtime_setup
+from tests.conftest import ROOT
 
 PERIOD = 20_000_000
 
@@ -93,7 +93,7 @@ np.eye(9) @ np.ones((9, 9))
 print(vm_kib() - before)
 """
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                         cwd=Path(__file__).resolve().parents[1])
+                         cwd=ROOT)
     assert int(out.stdout) < 1024, f"the first solve after the warm-up mapped {out.stdout.strip()} KiB"
 
 
