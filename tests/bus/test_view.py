@@ -371,6 +371,9 @@ def test_a_browser_follows_a_walk_and_shows_a_node_fault(tmp_path):
                 force_points.append(int(page.data("#plot-forces", "points")))
                 walker.join(0.2)
             page.wait_for("document.querySelector('#nodes tr.fault') !== null", 10)
+            # the controller's FAULT comes a tick after the node's (its EMCY), and may come in the
+            # page's next update (every 40 ms; at 4 times real time a tick is 5 ms): wait for it too
+            page.wait_for("window.viewStats.lastState === 'FAULT'", 10)
             fault_row = page.text("#nodes tr.fault")
             emcy = page.text("#emcy")
             stats = page.stats()
