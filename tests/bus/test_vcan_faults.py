@@ -45,6 +45,8 @@ import yaml
 
 from config import default_config_path, load_config, with_overrides
 from config.loader import config_to_dict
+from controller.faults import FaultKind
+from controller.fsm import OPERATOR_RESET
 from protocol.clock import TICK_S, MonotonicClock
 from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver
@@ -304,7 +306,7 @@ def test_killed_nodes_process_faults_the_controller_within_4_ticks_and_it_holds(
     fault_tick, source, _, cause = faults[0]
     print(f"\nF1: last node frame after SYNC {last_node_tick}, {source} -> FAULT at tick {fault_tick} "
           f"({fault_tick - last_node_tick} ticks): {cause}")
-    assert cause.startswith("NODE_LOST("), cause
+    assert FaultKind.of(cause) is FaultKind.NODE_LOST, cause
     assert 0 < fault_tick - last_node_tick <= BOUND_TICKS
     assert source in ("SWING_LEFT", "SWING_RIGHT"), source  # killed mid-swing
     # From walking straight to FAULT (no HOLD first, nothing after: FAULT is latched).
@@ -534,7 +536,7 @@ def test_restarted_controller_starts_and_stays_in_fault_without_an_operator_rese
     assert s["ticks"] == 150 and s["final_state"] == "FAULT" and s["resets"] == []
     assert len(transitions) == 1, transitions
     tick, source, target, cause = transitions[0]
-    assert (source, target) == ("INIT", "FAULT") and cause.startswith("DRIVE_FAULT("), transitions
+    assert (source, target) == ("INIT", "FAULT") and FaultKind.of(cause) is FaultKind.DRIVE_FAULT, transitions
     assert tick <= 5  # at its first statuses
     assert s["steps"] == []
     decoded, _ = decode_capture(r["logs"]["restart"])
@@ -565,7 +567,7 @@ def test_restarted_controller_leaves_fault_only_on_the_operators_reset_and_does_
         transitions, s["resets"], f"last stick forces {sticks} (I4 resets only with both sticks loaded)",
         f"EMCYs (SYNC tick, node, code) {emcys}", f"stalls (tick, ms) {s['stalls']}", r["reset_retried"],
         f"fault causes {s['fault_causes']}")
-    assert transitions[0][3].startswith("DRIVE_FAULT(") and transitions[1][3] == "operator reset"
+    assert FaultKind.of(transitions[0][3]) is FaultKind.DRIVE_FAULT and transitions[1][3] == OPERATOR_RESET
     assert len(s["resets"]) == 2, s["resets"]  # the nodes' FAULT_RESET, then the FSM's reset once they were healthy
     first_reset, fsm_reset = s["resets"]
     assert transitions[1][0] == fsm_reset  # FAULT left in the tick of the reset, not before
@@ -729,7 +731,7 @@ def test_cangen_random_flood_colliding_with_our_ids_during_a_lockstep_walk(vcan0
         _check_walked(summary, final)
         return
     tick, _, target, cause = faults[0]
-    assert target == "FAULT" and cause.startswith("FRAME_INTEGRITY("), faults
+    assert target == "FAULT" and FaultKind.of(cause) is FaultKind.FRAME_INTEGRITY, faults
     assert summary["final_state"] == "FAULT"
     ticks = _sync_ticks([r if isinstance(r, Decoded) else None for r in results])
     # The controller counts a frame in the tick whose drain reads it: one that arrived after its
