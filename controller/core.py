@@ -45,7 +45,7 @@ from controller.factory import balance_gains, leg as make_leg, leg_loads, step_b
 from controller.fsm import FsmInputs, GaitFsm
 from controller.gait import GaitPlanner
 from controller.policy import StepPolicy, StepRecord
-from protocol.catalog import Catalog, default_catalog
+from protocol.catalog import COUNTER_MODULO, Catalog, default_catalog
 from protocol.clock import TICK_S
 from protocol.codec import Decoded, RejectReason, Rejection
 from protocol.commands import JointCommand
@@ -86,6 +86,7 @@ class TickResult:
     estimate: Estimate | None
     events: list[str] = field(default_factory=list)
     landed: StepRecord | None = None  # the step that landed this tick
+    commands: tuple[JointCommand, ...] = ()  # the four joint commands of ``frames`` (node order), as sent
 
 
 class ControllerCore:
@@ -171,12 +172,12 @@ class ControllerCore:
         this one (else its later answers, read before the tick's own, count as on time while a tick
         old, for the rest of the walk: docs/CONTROLLER.md). A late answer that came before the next
         SYNC is no sign of a missed SYNC (:meth:`_missed_sync`)."""
-        lag = (self.syncs - counter) % 16
+        lag = (self.syncs - counter) % COUNTER_MODULO
         base = self._phase.get(frame_id)
-        age = MAX_AGE + 1 if base is None else (lag - base) % 16
+        age = MAX_AGE + 1 if base is None else (lag - base) % COUNTER_MODULO
         if age > MAX_AGE or (queued and age == 0):
             least = 1 if queued else 0  # the least lateness it can have
-            self._phase[frame_id] = (lag - least) % 16
+            self._phase[frame_id] = (lag - least) % COUNTER_MODULO
             return least
         if age and not queued:
             self._late_now[frame_id] = age
@@ -205,7 +206,7 @@ class ControllerCore:
             return
         self._shift = (0, 0)
         for fid in expected:
-            self._phase[fid] = (self._phase[fid] + shift) % 16
+            self._phase[fid] = (self._phase[fid] + shift) % COUNTER_MODULO
         for node in self.nodes.values():
             if node.status_tick == tick - shift:
                 node.status_tick = tick
@@ -484,9 +485,9 @@ class ControllerCore:
             self.stop_requested = self.stop_requested and state in WALKING
         finished = self._gait_transition(tick, before, state, estimate, measurements, landed, events)
         self.pending_faults.clear()
-        self._command(state, frames, measurements)
+        commands = self._command(state, frames, measurements)
         self.syncs += 1
-        return TickResult(tick, state, frames, estimate, events, finished)
+        return TickResult(tick, state, frames, estimate, events, finished, commands)
 
     def _check_fall(self, m: Measurements | None) -> None:
         """docs/FAULTS.md F18: the trunk tilted beyond ``fall_tilt_rad`` for ``fall_ticks`` ticks in a row."""
@@ -571,9 +572,9 @@ class ControllerCore:
         costs = self.policy.cycle_costs
         return (theta[0], theta[1], learner.n_updates, learner.rollouts_in_batch, len(costs), costs[-1] if costs else 0.0)
 
-    def _command(self, state: GaitState, frames: list[tuple[str, tuple]], m: Measurements | None) -> None:
+    def _command(self, state: GaitState, frames: list[tuple[str, tuple]], m: Measurements | None) -> tuple[JointCommand, ...]:
         """The four joint commands, through the envelope: the gait's targets in the walking
-        states, HOLD in every other (docs/FAULTS.md I2)."""
+        states, HOLD in every other (docs/FAULTS.md I2); appended to ``frames`` and returned."""
         moving = self.fsm.moving and m is not None
         if not moving:
             self._targets = None
@@ -582,7 +583,7 @@ class ControllerCore:
         limit = self.cfg.envelope.max_torque_nm
         torques = np.clip(self.gait.torques, -limit, limit).tolist() if moving else None
         hold = JointCommand(JointMode.HOLD, torque_limit_nm=self.hold_torque_nm)
-        sent = []
+        sent, commands = [], []
         for i, (name, joint) in enumerate(zip(self.node_names, self.joint_names)):
             if moving:
                 cmd = JointCommand(JointMode.TRACK, targets[i], torque_nm=torques[i], torque_limit_nm=limit)
@@ -592,11 +593,13 @@ class ControllerCore:
             if checked.violation is not None:
                 self.pending_faults.append(Fault(FaultKind.ENVELOPE, detail=checked.violation))  # latches FAULT next tick
             c = checked.command
+            commands.append(c)
             sent.append(c.position_rad)
             frames.append((self._command_of[name], (int(c.mode), c.position_rad, c.velocity_rad_s, c.torque_nm,
                                                     float(round(c.torque_limit_nm)))))
         if moving:
             self._targets = np.array(sent)
+        return tuple(commands)
 
 
 @dataclass

@@ -189,13 +189,12 @@ class LockstepLoop:
     def _record(self, result: TickResult, work_ns: int, lateness_ns: int) -> dict:
         m, est = self.core.measurements, result.estimate
         step = self.core.steps[-1] if self.core.steps and result.state in SWINGS else None
-        commands = [values for name, values in result.frames if name.startswith("JOINT_COMMAND")]
         return {
             "tick": result.tick,
             "state": result.state.name,
             "q_rad": None if m is None else m.joint_position_rad,
-            "setpoint_rad": [c[1] if c[0] == 1 else None for c in commands],
-            "mode": [JointMode(c[0]).name for c in commands],
+            "setpoint_rad": [c.position_rad if c.mode == JointMode.TRACK else None for c in result.commands],
+            "mode": [JointMode(c.mode).name for c in result.commands],
             "stick_force_n": None if m is None else m.stick_force_n,
             "plantar_n": None if m is None else m.heel_force_n + m.toe_force_n,
             "trunk_rpy_rad": None if m is None else m.trunk_rpy_rad,
