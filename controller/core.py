@@ -40,7 +40,7 @@ from config.controller_schema import ControllerConfig
 from controller.dmp import Dmp, DmpWeights
 from controller.envelope import Envelope, JointBounds
 from controller.estimator import Estimate, Measurements, StateEstimator
-from controller.faults import Fault, FaultKind
+from controller.faults import Fault, FaultKind, Reaction
 from controller.factory import balance_gains, leg as make_leg, leg_loads, step_bounds, swing_duration_s
 from controller.fsm import FsmInputs, GaitFsm
 from controller.gait import GaitPlanner
@@ -459,6 +459,10 @@ class ControllerCore:
                 self.gait_part = "swing"
                 swing = self.gait.swing(estimate, measurements)
                 done, landed = swing.done, swing.landed
+        # every cause of this tick to the state machine by its kind's reaction (controller.faults)
+        causes = [*self.pending_faults, *(f for f in (self._overrun_stop, slipped, supply_stop) if f is not None)]
+        faults = [f for f in causes if f.kind.reaction is Reaction.FAULT]
+        holds = [f for f in causes if f.kind.reaction is Reaction.HOLD]
         inputs = FsmInputs(
             nodes_operational=operational,
             nodes_healthy=healthy,
@@ -466,9 +470,9 @@ class ControllerCore:
             sticks_loaded=sticks_loaded,
             sticks_ahead=ready,
             swing_done=done,
-            fault=self.pending_faults[0] if self.pending_faults else None,
-            other_faults=tuple(self.pending_faults[1:]),
-            protective_stop=self._overrun_stop or slipped or supply_stop,
+            fault=faults[0] if faults else None,
+            other_faults=tuple(faults[1:]),
+            protective_stop=holds[0] if holds else None,
             reset=self.reset_requested,
             start=self.walk_requested,
             stop=self.stop_requested,
