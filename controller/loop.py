@@ -194,7 +194,7 @@ class LockstepLoop:
             "state": result.state.name,
             "q_rad": None if m is None else m.joint_position_rad,
             "setpoint_rad": [c.position_rad if c.mode == JointMode.TRACK else None for c in result.commands],
-            "mode": [JointMode(c.mode).name for c in result.commands],
+            "mode": [c.mode.name for c in result.commands],
             "stick_force_n": None if m is None else m.stick_force_n,
             "plantar_n": None if m is None else m.heel_force_n + m.toe_force_n,
             "trunk_rpy_rad": None if m is None else m.trunk_rpy_rad,

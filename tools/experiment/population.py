@@ -82,6 +82,8 @@ class PatientOutcome:
         force = adaptive["stick_force_mean_n"]
         reduction = (None if best is None or force is None
                      else round(100 * (best["stick_force_mean_n"] - force) / best["stick_force_mean_n"], 2))
+        # below every fixed length that never fell (below the least of them), or none never fell
+        below = force is not None and (best is None or force < best["stick_force_mean_n"])
         return {
             "patient": config_to_dict(self.patient),
             "learned_theta": list(self.theta),
@@ -92,12 +94,10 @@ class PatientOutcome:
             "best_fixed_stick_force_n": None if best is None else best["stick_force_mean_n"],
             "stick_force_reduction_pct": reduction,
             # beat: less stick force than the best fixed length that never fell, falling no more often
-            "adaptive_beats_best_fixed": bool(best is not None and force is not None and force < best["stick_force_mean_n"]
-                                              and adaptive["falls"] <= best["falls"]),
+            "adaptive_beats_best_fixed": below and best is not None and adaptive["falls"] <= best["falls"],
             # every comparison walk of the learned gait walked every cycle asked
             "adaptive_walks_every_walk": adaptive["walks"] > 0 and adaptive["stable_cycles_min"] == cycles,
-            # its stick force below every fixed length that never fell (below the least of them), or none never fell
-            "adaptive_below_fall_free_fixed": force is not None and (best is None or force < best["stick_force_mean_n"]),
+            "adaptive_below_fall_free_fixed": below,
             "falls_by_gait": {g["gait"]: g["falls"] for g in gaits},
             "above_comfort_pct": _above_comfort(adaptive, self.patient),
             "learning": self.learning.as_dict(),
