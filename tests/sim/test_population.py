@@ -243,15 +243,15 @@ def _gait(name, cycles_done, force, cycles=10):
     return GaitStats(name, (-0.3, 0.6) if name == ADAPTIVE else None, None if name == ADAPTIVE else float(name), walks)
 
 
-@pytest.mark.parametrize("adaptive, fixed, walks_every, below", [
+@pytest.mark.parametrize("adaptive, fixed, walks_every, below, beats", [
     # walks every walk, below the cheapest fall-free length (0.12 m at 300 N; 0.20 m falls)
-    ([10, 10], {"0.10": ([10, 10], 320.0), "0.12": ([10, 10], 300.0), "0.20": ([3, 10], 200.0)}, True, True),
+    ([10, 10], {"0.10": ([10, 10], 320.0), "0.12": ([10, 10], 300.0), "0.20": ([3, 10], 200.0)}, True, True, True),
     # one walk falls; above a fall-free length
-    ([10, 4], {"0.10": ([10, 10], 250.0)}, False, False),
-    # no fixed length is fall-free: below them all by definition
-    ([10, 10], {"0.10": ([2, 10], 250.0)}, True, True),
+    ([10, 4], {"0.10": ([10, 10], 250.0)}, False, False, False),
+    # no fixed length is fall-free: below them all by definition, but none to beat
+    ([10, 10], {"0.10": ([2, 10], 250.0)}, True, True, False),
 ])
-def test_a_patients_summary_says_whether_its_learned_gait_walks_every_walk_below_every_fall_free_length(adaptive, fixed, walks_every, below):
+def test_a_patients_summary_says_whether_its_learned_gait_walks_every_walk_below_every_fall_free_length(adaptive, fixed, walks_every, below, beats):
     from tools.experiment.compare import ADAPTIVE
     from tools.experiment.learn import LearningRun, Update
     from tools.experiment.population import PatientOutcome
@@ -263,3 +263,4 @@ def test_a_patients_summary_says_whether_its_learned_gait_walks_every_walk_below
     patient, _ = load_patient(population.PATIENTS_DIR / "reference.yaml", BASE)
     s = PatientOutcome(patient, run, (-0.3, 0.6), gaits).summary(10)
     assert (s["adaptive_walks_every_walk"], s["adaptive_below_fall_free_fixed"]) == (walks_every, below)
+    assert s["adaptive_beats_best_fixed"] is beats
