@@ -11,9 +11,13 @@ import numpy as np
 from config.controller_schema import ControllerConfig
 from controller.balance import GRAVITY, BalanceGains, LegLoads
 from controller.compensation import StepBounds
+from controller.dmp import Dmp, DmpWeights
+from controller.envelope import JointBounds
+from controller.gait import GaitPlanner
 from controller.kinematics import Leg
 from controller.pi2 import Pi2Learner, Pi2Params
 from controller.policy import StepPolicy
+from protocol.clock import TICK_S
 
 if TYPE_CHECKING:
     from controller.patients import PatientSaver
@@ -22,6 +26,20 @@ if TYPE_CHECKING:
 def leg(cfg: ControllerConfig) -> Leg:
     g = cfg.legs
     return Leg(g.thigh_m, g.shank_m, g.hip_min_rad, g.hip_max_rad, g.knee_min_rad, g.knee_max_rad)
+
+
+def joint_bounds(cfg: ControllerConfig) -> tuple[JointBounds, ...]:
+    """The four joints' ranges, named as the controller names them (hip_l, knee_l, hip_r, knee_r)."""
+    g = cfg.legs
+    return tuple(JointBounds(f"{kind}_{side}", lo, hi) for side in ("l", "r")
+                 for kind, lo, hi in (("hip", g.hip_min_rad, g.hip_max_rad), ("knee", g.knee_min_rad, g.knee_max_rad)))
+
+
+def gait_planner(cfg: ControllerConfig, swing_weights: DmpWeights) -> GaitPlanner:
+    """The gait of one tick period with the fitted swing."""
+    return GaitPlanner(leg(cfg), Dmp(swing_weights), cfg.gait, leg_loads(cfg), balance_gains(cfg),
+                       ankle_height_m=cfg.legs.ankle_height_m, swing_s=swing_duration_s(cfg), dt_s=TICK_S,
+                       substeps=cfg.swing.substeps)
 
 
 def leg_loads(cfg: ControllerConfig) -> LegLoads:

@@ -23,7 +23,9 @@ import numpy as np
 
 from config.errors import AiderError
 from controller.compensation import StepBounds, StepGoal, compensated_step
+from controller.interfaces import LearningTelemetry, StepTelemetry
 from controller.pi2 import Pi2Learner, UpdateRecord
+from protocol.enums import PolicyMode
 
 
 class PolicyError(AiderError):
@@ -151,3 +153,27 @@ class StepPolicy:
         self._pending.clear()
         if self.on_update is not None:
             self.on_update(self.learner, record)
+
+
+def step_telemetry(steps: list[StepRecord], policy: StepPolicy) -> StepTelemetry:
+    """The newest step for monitors: its length, the one before it as placed, the newest landed
+    step's cost and the policy's mode (an experiment's random lengths show as fixed: no theta)."""
+    last = steps[-1] if steps else None
+    before = steps[-2] if len(steps) > 1 else None
+    landed = next((st for st in reversed(steps) if st.landed), None)
+    mode = PolicyMode.__members__.get(policy.mode.upper(), PolicyMode.FIXED)
+    return StepTelemetry(len(steps), last.length_m if last else 0.0, before.placed_m if before else 0.0,
+                         landed.mean_stick_force_n if landed else 0.0, mode)
+
+
+def learning_telemetry(steps: list[StepRecord], policy: StepPolicy) -> LearningTelemetry:
+    """The theta of the newest step (or the compensation's before the first) and the learner's progress."""
+    theta = next((st.theta for st in reversed(steps) if st.theta is not None), None)
+    if theta is None:
+        theta = policy.theta if policy.fixed_m is None and policy.learner is None else (0.0, 0.0)
+    learner = policy.learner
+    if learner is None:
+        return LearningTelemetry(*theta)
+    costs = policy.cycle_costs
+    return LearningTelemetry(theta[0], theta[1], learner.n_updates, learner.rollouts_in_batch, len(costs),
+                             costs[-1] if costs else 0.0)

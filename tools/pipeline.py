@@ -24,6 +24,7 @@ import numpy as np
 
 from config import Config, with_overrides
 from controller.core import ControllerCore, TickResult
+from controller.hardware import CanHardware
 from controller.faults import FaultKind
 from controller.loop import LockstepLoop
 from controller.policy import StepPolicy, StepRecord
@@ -206,7 +207,7 @@ def drive(
     outcome.final_state = result.state.name if result else ""
     outcome.ticks = loop.report.ticks
     outcome.events = loop.report.events
-    outcome.receiver = loop.rx.stats.as_dict()
+    outcome.receiver = loop.hardware.rx.stats.as_dict()
     outcome.timing = loop.stats.summary()
     outcome.theta = core.policy.current_theta() if core.policy.learner is None else tuple(core.policy.learner.evaluation_theta())
     return result
@@ -240,8 +241,9 @@ def walk(
         host = NodesHost(cfg, node_bus, lockstep=True, seed=seed)
         try:
             host.boot()
-            loop = LockstepLoop(core, ctl_bus, pump=lambda: host.poll(0.0), max_delta_counter=cfg.protocol.max_delta_counter,
-                                telemetry=telemetry)
+            hardware = CanHardware(cfg.controller, ctl_bus, pump=lambda: host.poll(0.0),
+                                   max_delta_counter=cfg.protocol.max_delta_counter)
+            loop = LockstepLoop(core, hardware, telemetry=telemetry)
             drive(
                 loop, outcome, cycles=cycles, max_ticks=int(max_time_s * 1000 / TICK_MS),
                 truth_ratio=(lambda: host.truth()["x_ratio"]) if compare_ratio else None,
@@ -270,7 +272,8 @@ def walk_controller(
     outcome = WalkOutcome(mode=mode, seed=seed, policy=core.policy.mode, steps=core.steps)
     clock = MonotonicClock()
     t0 = clock.now_ns()
-    loop = LockstepLoop(core, bus, max_delta_counter=cfg.protocol.max_delta_counter, telemetry=telemetry)
+    loop = LockstepLoop(core, CanHardware(cfg.controller, bus, max_delta_counter=cfg.protocol.max_delta_counter),
+                        telemetry=telemetry)
     drive(loop, outcome, cycles=cycles, max_ticks=int(max_time_s * 1000 / TICK_MS), on_tick=on_tick)
     outcome.sim_time_s = outcome.ticks * TICK_MS / 1000.0
     outcome.wall_time_s = (clock.now_ns() - t0) / 1e9

@@ -8,6 +8,7 @@ import pytest
 
 from config import default_config_path, load_config, with_overrides
 from controller.core import ControllerCore
+from controller.hardware import CanHardware
 from controller.loop import LockstepLoop
 from nodes.host import NodesHost
 from protocol.bus import virtual_bus
@@ -26,7 +27,7 @@ def rig(request):
         ctl_bus = virtual_bus(channel)
         host = NodesHost(cfg, node_bus, lockstep=True, seed=4)
         host.boot()
-        loop = LockstepLoop(ControllerCore(cfg.controller), ctl_bus, pump=lambda: host.poll(0.0))
+        loop = LockstepLoop(ControllerCore(cfg.controller), CanHardware(cfg.controller, ctl_bus, pump=lambda: host.poll(0.0)))
 
         def close():
             host.close()
@@ -47,7 +48,8 @@ def test_nodes_come_up_and_the_controller_stands_holding_with_estimates(rig):
     first_stand = states.index(GaitState.STAND)
     assert first_stand <= 8  # boot-up, NMT start, a first status, the operational heartbeats
     assert all(s == GaitState.STAND for s in states[first_stand:])
-    assert loop.report.timeouts == 0 and loop.rx.stats.rejected_total == 0 and loop.rx.stats.lost == 0
+    hardware = loop.hardware
+    assert hardware.counters.timeouts == 0 and hardware.rx.stats.rejected_total == 0 and hardware.rx.stats.lost == 0
     status = host.status()
     assert {n["nmt"] for n in status["nodes"].values()} == {"OPERATIONAL"}
     assert {n["drive"] for n in status["nodes"].values()} == {"HOLD"} and status["fall"] is None
@@ -101,7 +103,7 @@ def test_real_time_controller_and_real_time_nodes_hold_the_hhea_up(request):
         host = NodesHost(cfg, node_bus, lockstep=False, seed=4)
         try:
             with running_in_thread(host):
-                loop = RealtimeLoop(ControllerCore(cfg.controller), ctl_bus)
+                loop = RealtimeLoop(ControllerCore(cfg.controller), CanHardware(cfg.controller, ctl_bus))
                 states = [loop.step().state for _ in range(100)]
                 nodes = host.status()
         finally:
@@ -114,7 +116,7 @@ def test_real_time_controller_and_real_time_nodes_hold_the_hhea_up(request):
     else:
         pytest.skip("every real-time run was stopped by a stall of the machine: " + "; ".join(stalled))
     assert states[-1] == GaitState.STAND and GaitState.FAULT not in states, loop.report.events
-    assert loop.rx.stats.rejected_total == 0
+    assert loop.hardware.rx.stats.rejected_total == 0
     summary = loop.stats.summary()
     assert summary["ticks"] == 100 and summary["work"]["max_us"] > 0
 
@@ -144,7 +146,7 @@ def _real_time_walk(cycles: int, channel: str):
     try:
         with running_in_thread(host):
             core = ControllerCore(cfg.controller)
-            loop = RealtimeLoop(core, ctl_bus, max_delta_counter=cfg.protocol.max_delta_counter)
+            loop = RealtimeLoop(core, CanHardware(cfg.controller, ctl_bus, max_delta_counter=cfg.protocol.max_delta_counter))
             core.request_walk()  # the operator's start, kept until the nodes are up and it stands
             for _ in range(int(default_max_time_s(cycles) * 1000 / TICK_MS)):
                 states.append(loop.step().state)
@@ -173,7 +175,7 @@ def test_real_time_controller_walks_two_gait_cycles_with_real_time_nodes():
         loop, core, states, fall, nodes = _real_time_walk(cycles, f"loop-realtime-walk-{attempt}")
         timing = loop.stats.summary()
         why = (f"events {loop.report.events[-4:]}, controller overruns {timing['overruns']} (skipped {timing['skipped_ticks']}), "
-               f"nodes overruns {nodes['overruns']}, status read-window misses {loop.report.timeouts}, "
+               f"nodes overruns {nodes['overruns']}, status read-window misses {loop.hardware.counters.timeouts}, "
                f"stalls {loop.report.stalls} {nodes['stalls']}")
         if fall is None and _stopped_by_a_stall(loop, nodes):
             stalled.append(why)
@@ -185,7 +187,7 @@ def test_real_time_controller_walks_two_gait_cycles_with_real_time_nodes():
     landed = [s.leg for s in core.steps if s.landed]
     assert len(landed) == 2 * cycles and landed[0] != landed[1], why
     assert {GaitState.SWING_LEFT, GaitState.SWING_RIGHT} <= set(states)
-    assert loop.rx.stats.rejected_total == 0 and nodes["receiver"]["rejected"] == 0
+    assert loop.hardware.rx.stats.rejected_total == 0 and nodes["receiver"]["rejected"] == 0
     assert {n["error"] for n in nodes["nodes"].values()} == {"NONE"} and nodes["fall"] is None
     assert timing["ticks"] == len(states)
 
@@ -281,10 +283,10 @@ def test_a_lockstep_tick_reads_at_most_200_frames_per_20_ms_it_waits(gap_us, rea
 
     clock = ManualClock()
     bus = _FloodBus(clock, 600, gap_us * 1000)
-    loop = LockstepLoop(ControllerCore(BASE.controller), bus, clock=clock)
-    loop._drain(0, clock.now_ns() + 2_000_000_000, {"LEFT_HIP"})
-    assert loop.report.drained_max == read
-    assert loop.rx.stats.rejected_total == read and loop.report.timeouts == 1
+    hardware = CanHardware(BASE.controller, bus, clock=clock)
+    hardware._drain(0, clock.now_ns() + 2_000_000_000, {"LEFT_HIP"})
+    assert hardware.counters.drained_max == read
+    assert hardware.rx.stats.rejected_total == read and hardware.counters.timeouts == 1
 
 
 class _SharedCpuClock:
@@ -320,17 +322,17 @@ def test_a_real_time_tick_that_overran_off_the_cpu_is_a_stall(ms_off, ms_on, sta
 
     clock = _SharedCpuClock()
     core = ControllerCore(BASE.controller)
-    tick = core.tick
+    update = core.update
 
-    def slow_tick(k):  # tick 0's update: the CPU lost, then the controller's own work
-        if k == 0:
+    def slow_update(snapshot):  # tick 0's update: the CPU lost, then the controller's own work
+        if snapshot.tick == 0:
             clock.lose(ms_off * 1_000_000)
             clock.work(ms_on * 1_000_000)
-        return tick(k)
+        return update(snapshot)
 
-    core.tick = slow_tick
+    core.update = slow_update
     with virtual_bus("loop-overrun-stall") as bus:
-        loop = RealtimeLoop(core, bus, clock=clock)
+        loop = RealtimeLoop(core, CanHardware(BASE.controller, bus, clock=clock))
         loop.step()  # tick 0, no node up: nothing to wait for
         assert loop.step().tick == 2  # tick 1 skipped
     assert loop.timer.overruns == 1 and loop.timer.skipped == 1

@@ -116,6 +116,7 @@ def _real_time_session(folder, channel: str, ticks: int):
     frame recorded by the session recorder (rotating every 60 kB); returns (loop, files)."""
     from config import default_config_path, load_config, with_overrides
     from controller.core import ControllerCore
+    from controller.hardware import CanHardware
     from controller.loop import RealtimeLoop
     from nodes.host import NodesHost, running_in_thread
     from protocol.bus import virtual_bus
@@ -134,7 +135,7 @@ def _real_time_session(folder, channel: str, ticks: int):
     try:
         with running_in_thread(host):
             core = ControllerCore(cfg.controller)
-            loop = RealtimeLoop(core, ctl_bus, max_delta_counter=cfg.protocol.max_delta_counter)
+            loop = RealtimeLoop(core, CanHardware(cfg.controller, ctl_bus, max_delta_counter=cfg.protocol.max_delta_counter))
             core.request_walk()  # the operator's start, kept until it stands (as controller --walk)
             for _ in range(ticks):
                 if loop.step().state == GaitState.FAULT:

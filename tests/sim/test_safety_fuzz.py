@@ -76,7 +76,7 @@ def test_a_hundred_thousand_random_frames_break_no_invariant():
                     rig.core.request_walk()
                 rig.step()
                 states.add(rig.state)
-        stats = rig.loop.rx.stats
+        stats = rig.hardware.rx.stats
         assert rig.oracle.violations == [], rig.oracle.violations[:10]
         assert rig.oracle.ticks == 60 + FRAMES // PER_TICK
         # Every frame went through the receive path: the intruder's all rejected or (a good CRC

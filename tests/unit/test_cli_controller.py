@@ -2,7 +2,7 @@
 
 from types import SimpleNamespace
 
-from controller.core import NodeState
+from controller.cansystem import NodeState
 from controller.fsm import GaitFsm
 from protocol.enums import DriveState, GaitState, NmtState
 from tools.cli.controller import _status_line
@@ -15,7 +15,7 @@ def _loop(fault: str | None, healthy_ticks: int) -> SimpleNamespace:
     fsm._healthy_ticks = healthy_ticks
     nodes = {n: NodeState(NmtState.OPERATIONAL, SimpleNamespace(drive_state=DriveState.FAULT if n == fault else DriveState.HOLD))
              for n in NODES}
-    return SimpleNamespace(core=SimpleNamespace(fsm=fsm, nodes=nodes), report=SimpleNamespace(timeouts=0))
+    return SimpleNamespace(core=SimpleNamespace(fsm=fsm), hardware=SimpleNamespace(nodes=nodes, counters=SimpleNamespace(timeouts=0)))
 
 
 def test_in_fault_the_status_line_says_what_a_reset_waits_for():

@@ -91,6 +91,7 @@ def _max_ticks(max_ticks: int | None, cycles: int) -> int:
 
 def _lockstep(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
     from controller.core import ControllerCore
+    from controller.hardware import CanHardware
     from controller.loop import LockstepLoop
     from nodes.host import NodesHost, SimTickTimer
     from sim.world import PhysicsTimer
@@ -110,8 +111,8 @@ def _lockstep(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
             physics = PhysicsTimer(host.patient.world, clock)
             host.boot()
             core = ControllerCore(cfg.controller)
-            loop = LockstepLoop(core, ctl_bus, pump=lambda: host.poll(0.0), clock=clock,
-                                max_delta_counter=cfg.protocol.max_delta_counter)
+            loop = LockstepLoop(core, CanHardware(cfg.controller, ctl_bus, pump=lambda: host.poll(0.0), clock=clock,
+                                                  max_delta_counter=cfg.protocol.max_delta_counter))
             outcome = WalkOutcome(mode=MODE, seed=SEED, policy=core.policy.mode, steps=core.steps)
 
             def on_tick(result: Any, _core: Any) -> None:
@@ -167,6 +168,7 @@ def _plain_sleep_loop(ticks: int) -> dict[str, Any]:
 
 def _realtime(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
     from controller.core import ControllerCore
+    from controller.hardware import CanHardware
     from controller.loop import RealtimeLoop
     from controller.timing import TickStats
     from nodes.host import NodesHost, running_in_thread
@@ -180,7 +182,7 @@ def _realtime(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
         try:
             with running_in_thread(host):
                 core = ControllerCore(cfg.controller)
-                loop = RealtimeLoop(core, ctl_bus, max_delta_counter=cfg.protocol.max_delta_counter)
+                loop = RealtimeLoop(core, CanHardware(cfg.controller, ctl_bus, max_delta_counter=cfg.protocol.max_delta_counter))
                 outcome = WalkOutcome(mode=MODE, seed=SEED, policy=core.policy.mode, steps=core.steps)
                 drive(loop, outcome, cycles=cycles, max_ticks=max_ticks, fallen=lambda: host.patient.fall,
                       on_tick=lambda result, _core: states.append(result.state.name))
@@ -197,9 +199,9 @@ def _realtime(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
         "controller_work": TickStats._summary(loop.stats.work_ns[:n][walking]),
         "overruns": s["overruns"],
         "skipped_ticks": s["skipped_ticks"],
-        "timeouts": loop.report.timeouts,
+        "timeouts": loop.hardware.counters.timeouts,
         "nodes_overruns": nodes["overruns"],
-        "rejected": loop.rx.stats.rejected_total,
+        "rejected": loop.hardware.rx.stats.rejected_total,
     }
 
 

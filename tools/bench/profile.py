@@ -59,15 +59,16 @@ TIMED = (
     (2, "sim.walk", "Walker._fall_reason"),
     (1, "nodes.host", "NodesHost._report"),
     (1, "nodes.host", "NodesHost._apply"),
-    (0, "controller.core", "ControllerCore.tick"),
+    (0, "controller.cansystem", "CanSystem.snapshot"),
+    (1, "controller.cansystem", "CanSystem._measurements"),
+    (0, "controller.core", "ControllerCore.update"),
     (1, "controller.estimator", "StateEstimator.update"),
-    (1, "controller.core", "ControllerCore._measurements"),
     (1, "controller.core", "ControllerCore._command"),
     (1, "controller.gait", "GaitPlanner.double_support"),
     (1, "controller.gait", "GaitPlanner.swing"),
     (0, "protocol.e2e", "Receiver.receive"),
-    (0, "controller.core", "ControllerCore.accept"),
-    (0, "controller.loop", "LockstepLoop._send"),
+    (0, "controller.cansystem", "CanSystem.accept"),
+    (0, "controller.hardware", "CanHardware._send"),
 )
 
 

@@ -51,19 +51,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def _status_line(loop: Any, result: Any) -> str:
     est = result.estimate
     nodes = " ".join(f"{n.split('_')[0][0]}{n.split('_')[1][0]}:{(s.nmt.name[:4] if s.nmt is not None else '----')}"
-                     for n, s in loop.core.nodes.items())
+                     for n, s in loop.hardware.nodes.items())
     extra = ""
     if est is not None:
         extra = f" | X_CoM/X_SP {est.x_ratio:.2f} | sticks loaded {sum(est.sticks_loaded)} feet {sum(est.feet_loaded)}"
     if result.state in (GaitState.FAULT, GaitState.HOLD):  # what a reset waits for (I4): the operator sees why nothing happens
         fsm = loop.core.fsm
-        faulted = [n for n, s in loop.core.nodes.items() if s.status is not None and s.status.drive_state == DriveState.FAULT]
+        faulted = [n for n, s in loop.hardware.nodes.items() if s.status is not None and s.status.drive_state == DriveState.FAULT]
         extra += f" | healthy {fsm.healthy_ticks}/{fsm.reset_healthy_ticks} ticks" + (f", drive FAULT: {' '.join(faulted)}" if faulted else "")
-    return f"controller tick {result.tick} {result.state.name} | {nodes}{extra} | timeouts {loop.report.timeouts}"
+    return f"controller tick {result.tick} {result.state.name} | {nodes}{extra} | timeouts {loop.hardware.counters.timeouts}"
 
 
 def run(args: argparse.Namespace) -> int:
     from controller.core import ControllerCore
+    from controller.hardware import CanHardware
     from controller.loop import LockstepLoop, RealtimeLoop
     from controller.sdnotify import Notifier
     from controller.telemetry import TelemetryLog
@@ -97,14 +98,14 @@ def run(args: argparse.Namespace) -> int:
             telemetry = TelemetryLog(args.log) if args.log else None
             if telemetry is not None and telemetry.previous is not None:  # a restart: the crashed run's log is kept
                 print(f"aider-exo controller: the previous log {args.log} was moved to {telemetry.previous}", file=sys.stderr)
-            kwargs = dict(max_delta_counter=cfg.protocol.max_delta_counter, clock=clock, telemetry=telemetry)
+            hardware = CanHardware(cfg.controller, bus, max_delta_counter=cfg.protocol.max_delta_counter, clock=clock)
             if args.lockstep:
-                loop: LockstepLoop = LockstepLoop(core, bus, **kwargs)
+                loop: LockstepLoop = LockstepLoop(core, hardware, telemetry=telemetry)
             else:
                 rt = realtime_setup(cpu=args.cpu)
                 for warning in rt.warnings:
                     print(f"aider-exo controller: warning: {warning}", file=sys.stderr)
-                loop = RealtimeLoop(core, bus, bitrate_bit_s=cfg.bus.bitrate_bit_s, **kwargs)
+                loop = RealtimeLoop(core, hardware, bitrate_bit_s=cfg.bus.bitrate_bit_s, telemetry=telemetry)
             notifier.ready("controller loop running")
             next_status = clock.now_ns()
             result = None
@@ -160,10 +161,10 @@ def run(args: argparse.Namespace) -> int:
         "final_state": result.state.name if result else None,
         "fault_causes": [str(f) for f in core.fsm.fault_causes],  # every cause seen while FAULT is latched (the first announced)
         "fault_kinds": [f.kind.name for f in core.fsm.fault_causes],
-        "timeouts": loop.report.timeouts,
-        "frames_sent": loop.report.frames_sent,
-        "send_failures": loop.report.send_failures,
-        "receiver": loop.rx.stats.as_dict(),
+        "timeouts": hardware.counters.timeouts,
+        "frames_sent": hardware.counters.frames_sent,
+        "send_failures": hardware.counters.send_failures,
+        "receiver": hardware.rx.stats.as_dict(),
         "timing": loop.stats.summary(),
         "stalls": [list(x) for x in loop.report.stalls],
         "realtime_setup": {"applied": rt.applied, "warnings": rt.warnings} if rt else None,

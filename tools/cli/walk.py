@@ -77,7 +77,7 @@ class StatusLine:
         if not (self.tty or new_step or t - self.last_s >= 1.0):
             return
         self.steps, self.last_s = len(core.steps), t
-        m, est = core.measurements, result.estimate
+        m, est = result.measurements, result.estimate
         step = core.steps[-1] if core.steps else None
         text = f"walk {t:6.1f} s | {result.state.name:<14}"
         if step is not None:

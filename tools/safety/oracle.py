@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 
 import can
 
-from controller.core import SENSOR_MESSAGES, ControllerCore, TickResult
+from controller.cansystem import SENSOR_MESSAGES, CanSystem
+from controller.core import ControllerCore, TickResult
 from controller.faults import Fault
 from controller.fsm import OPERATOR_RESET
 from protocol.codec import Codec, Decoded
@@ -36,6 +37,7 @@ class StopRecord:
 @dataclass
 class Oracle:
     core: ControllerCore
+    hardware: CanSystem
     codec: Codec = field(default_factory=Codec)
     violations: list[str] = field(default_factory=list)
     stops: list[StopRecord] = field(default_factory=list)
@@ -78,7 +80,7 @@ class Oracle:
         env = self.core.envelope
         track = {}
         for node, c in commands.items():
-            joint = self.core.joint_names[self.core.node_names.index(node)]
+            joint = self.core.joint_names[self.hardware.node_names.index(node)]
             values = (c.position_setpoint_rad, c.velocity_ff_rad_s, c.torque_ff_Nm, c.torque_limit_Nm)
             if not all(map(math.isfinite, values)):
                 self._fail(k, f"I1 {joint}: non-finite {values}")
@@ -103,10 +105,10 @@ class Oracle:
 
     def _health(self, k: int, state: GaitState) -> None:
         """A TRACK command went out: the FSM moves, and every node is healthy with fresh data."""
-        core = self.core
+        hardware = self.hardware
         if state not in WALKING:
             self._fail(k, f"I2 TRACK command in {state.name}")
-        for name, node in core.nodes.items():
+        for name, node in hardware.nodes.items():
             if node.nmt != NmtState.OPERATIONAL:
                 self._fail(k, f"I2 TRACK command with {name} {node.nmt}")
             if node.status is None or k - node.status_tick > 2:
@@ -114,7 +116,7 @@ class Oracle:
             elif node.status.drive_state == DriveState.FAULT:
                 self._fail(k, f"I2 TRACK command with {name}'s drive in FAULT")
         for name in SENSOR_MESSAGES:
-            tick = core.latest.get(name, (-(10**9), None))[0]
+            tick = hardware.latest.get(name, (-(10**9), None))[0]
             if k - tick > 2:
                 self._fail(k, f"I5 TRACK command on {name} of tick {tick}")
 
@@ -153,12 +155,12 @@ class Oracle:
             if t.source == GaitState.FAULT and core.fsm.healthy_ticks < core.fsm.reset_healthy_ticks:
                 self._fail(k, f"I4 FAULT left after {core.fsm.healthy_ticks} healthy ticks")
             if t.target in SWINGS:
-                stale = [n for n, s in core.nodes.items() if s.status_tick != k]
-                stale += [n for n in SENSOR_MESSAGES if core.latest.get(n, (-1,))[0] != k]
+                stale = [n for n, s in self.hardware.nodes.items() if s.status_tick != k]
+                stale += [n for n in SENSOR_MESSAGES if self.hardware.latest.get(n, (-1,))[0] != k]
                 if stale:
                     self._fail(k, f"I2 a step started on data older than this tick: {stale}")
         # The first tick whose commands on the bus are all HOLD, after each entry into HOLD or FAULT.
-        all_hold = len(commands) == len(core.node_names) and all(c.mode != JointMode.TRACK for c in commands.values())
+        all_hold = len(commands) == len(self.hardware.node_names) and all(c.mode != JointMode.TRACK for c in commands.values())
         for stop in self.stops:
             if stop.hold_on_bus_tick is None and all_hold and state in STOP_STATES:
                 stop.hold_on_bus_tick = k

@@ -22,6 +22,7 @@ from config import Config, with_overrides
 from config.loader import build
 from config.nodes_schema import FaultConfig
 from controller.core import ControllerCore, TickResult
+from controller.hardware import CanHardware
 from controller.loop import LockstepLoop
 from nodes.host import NodesHost
 from protocol.bus import virtual_bus
@@ -96,11 +97,10 @@ class FaultRig:
             raise
         self.host.boot()
         self.core = ControllerCore(cfg.controller)
-        self.loop = LockstepLoop(
-            self.core, self.bus, codec=shared_codec(), pump=None if answering else pump, tick_timeout_s=tick_timeout_s,
-            max_delta_counter=cfg.protocol.max_delta_counter,
-        )
-        self.oracle = Oracle(self.core, codec=shared_codec())
+        self.hardware = CanHardware(cfg.controller, self.bus, codec=shared_codec(), pump=None if answering else pump,
+                                    max_delta_counter=cfg.protocol.max_delta_counter)
+        self.loop = LockstepLoop(self.core, self.hardware, tick_timeout_s=tick_timeout_s)
+        self.oracle = Oracle(self.core, self.hardware, codec=shared_codec())
         self.results: list[TickResult] = []
         self.keep_results = keep_results
         self.last: TickResult | None = None

@@ -3,15 +3,16 @@ tick, and the frames it would send compared with the ones the recorded controlle
 
 The trace is cut at its SYNC frames: the node frames after SYNC(k) (and, for the first tick, the
 boot-ups before it) up to the controller's first frame of the tick are what
-:class:`controller.loop.LockstepLoop` read in tick ``k``: the loop sends its frames once its read
+:class:`controller.hardware.CanHardware` read in tick ``k``: the loop sends its frames once its read
 has ended, so a node frame after them came too late for the tick's read, and the loop read it
-before it sent SYNC(k+1), as a late answer (``queued``; :meth:`LockstepLoop._read_queued`), which
+before it sent SYNC(k+1), as a late answer (``queued``; :meth:`CanHardware._read_queued`), which
 is how they are fed here. (In a lock-step run every node frame of a SYNC comes before the
 controller's; a frame that comes after the read ended but before the controller sends, in a real-
-time run, is taken for the tick's: the wire does not show where a read ended.) They go through a
-:class:`protocol.e2e.Receiver` with the configured ``max_delta_counter`` into
-:meth:`ControllerCore.receive`, then :meth:`ControllerCore.tick` gives the tick's frames, plus
-the controller's heartbeat and telemetry on the DBC's schedule, as the loop sends them. Both sides are compared
+time run, is taken for the tick's: the wire does not show where a read ended.) A
+:class:`controller.hardware.ReplayHardware` reads them (through the receiver with the configured
+``max_delta_counter``) into the tick's snapshot, :meth:`ControllerCore.update` runs on it, and
+the hardware's write gives the tick's frames, the controller's heartbeat and telemetry on the DBC's
+schedule among them, as the loop sends them. Both sides are compared
 on the wire's grid (the new values encoded and decoded with the DBC), message by message and
 signal by signal; the first divergence names the tick, the message, the signal and both values.
 This is how a controller change is regression-tested against recorded sessions: the recorded
@@ -41,7 +42,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from protocol.codec import Codec, Decoded
-from protocol.e2e import Receiver
 from protocol.enums import GaitState
 from protocol.errors import EncodeError
 from tools.trace.decode import decimals
@@ -181,18 +181,17 @@ def resimulate(frames: Iterable[Frame], controller_cfg: Any, *, codec: Codec, ma
     doc). ``request_walk_tick``: the tick of the operator's start (in each controller run),
     ``"start"`` for each run's first tick, or None."""
     from controller.core import ControllerCore
+    from controller.hardware import ReplayHardware
 
     report = ResimReport()
     core: ControllerCore | None = None
-    rx = Receiver(codec, max_delta_counter=max_delta_counter)
+    hardware: ReplayHardware | None = None
     last_tick: int | None = None
 
-    def feed(frames: list[Frame], k: int, queued: bool) -> None:
-        for frame in frames:
-            result = rx.receive(frame)
-            report.node_frames_fed += 1
-            report.node_frames_rejected += type(result) is not Decoded
-            core.accept(result, k, queued)  # as the loop: a rejection counted by the core too
+    def count_fed() -> None:  # a run's frames, as its hardware counted them
+        if hardware is not None:
+            report.node_frames_fed += hardware.frames_fed
+            report.node_frames_rejected += hardware.frames_rejected
 
     late: list[Frame] = []
     preamble: list[Frame] = []
@@ -204,9 +203,10 @@ def resimulate(frames: Iterable[Frame], controller_cfg: Any, *, codec: Codec, ma
         if first and k != 0:  # the recording starts while a controller runs: up to its next start
             report.skipped_frames = tick.preamble
         started = (first and k == 0) or (not first and k < last_tick)  # a controller's start (or restart)
-        if started:  # a fresh controller, as the restarted process
+        if started:  # a fresh controller and hardware, as the restarted process
+            count_fed()
             core = ControllerCore(controller_cfg, policy=None)
-            rx = Receiver(codec, max_delta_counter=max_delta_counter)
+            hardware = ReplayHardware(controller_cfg, codec=codec, max_delta_counter=max_delta_counter)
             report.runs += 1
             # what came after the last controller's frames, before this SYNC(0): the restarted
             # controller's preamble, as the frames before the recording's first SYNC(0) are
@@ -222,14 +222,10 @@ def resimulate(frames: Iterable[Frame], controller_cfg: Any, *, codec: Codec, ma
             continue
         if (request_walk_tick == "start" and started) or (isinstance(request_walk_tick, int) and k == request_walk_tick):
             core.request_walk()
-        if started and preamble:
-            feed(preamble, k, queued=False)
-        feed(late, k, queued=True)
-        feed(tick.node_frames, k, queued=False)
+        read = [*preamble, *tick.node_frames] if started else tick.node_frames
+        result = core.update(hardware.read(k, late, read))
         late = tick.late_frames
-        result = core.tick(k)
-        sent = list(result.frames)
-        sent += core.scheduled_frames(k, result.state)
+        sent = hardware.write(k, result.commands)
         recorded = []
         for frame in tick.controller_frames:
             decoded = codec.decode(frame.arbitration_id, frame.data)
@@ -241,6 +237,7 @@ def resimulate(frames: Iterable[Frame], controller_cfg: Any, *, codec: Codec, ma
             report.divergences += found[: MAX_LISTED - len(report.divergences)]
         report.ticks += 1
         report.final_state = result.state.name
+    count_fed()
     return report
 
 
