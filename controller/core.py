@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from config.controller_schema import ControllerConfig
-from controller.dmp import DmpWeights
+from controller.dmp_model import DmpWeights
 from controller.envelope import Envelope
 from controller.estimator import Estimate, Measurements, StateEstimator
 from controller.factory import gait_planner, joint_bounds, step_bounds

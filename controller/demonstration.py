@@ -31,7 +31,7 @@ import math
 
 import numpy as np
 
-from controller.dmp import DmpError
+from controller.dmp_model import DmpError
 
 LIFT_RAMP = 0.3  # fraction of the swing over which the foot rises (and, at the end, comes down)
 ADVANCE = (0.10, 0.85)  # fraction of the swing over which the foot moves forward

@@ -11,7 +11,8 @@ import numpy as np
 from config.controller_schema import ControllerConfig
 from controller.balance import GRAVITY, BalanceGains, LegLoads
 from controller.compensation import StepBounds
-from controller.dmp import Dmp, DmpWeights
+from controller.dmp import Dmp
+from controller.dmp_model import DmpWeights
 from controller.envelope import JointBounds
 from controller.gait import GaitPlanner
 from controller.kinematics import Leg

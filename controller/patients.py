@@ -23,7 +23,7 @@ import numpy as np
 
 from config.files import OutputError, write_text
 from config.errors import AiderError
-from controller.pi2 import LearnerError, Pi2Learner
+from controller.pi2 import LearnerError, Pi2Learner, learner_from_state, learner_state
 
 FORMAT = "aider-exo patient"
 VERSION = 3
@@ -89,7 +89,7 @@ def restore_learner(record: PatientRecord, rng: np.random.Generator, path: str |
     if record.learner_state is None:
         return None
     try:
-        return Pi2Learner.from_state_dict(record.learner_state, rng)
+        return learner_from_state(record.learner_state, rng)
     except LearnerError as exc:
         raise PatientError(f"{path}: {exc}") from None
 
@@ -97,7 +97,7 @@ def restore_learner(record: PatientRecord, rng: np.random.Generator, path: str |
 def save_patient(directory: str | os.PathLike[str], name: str, theta: Any, learner: Pi2Learner | None) -> Path:
     """Write the patient's file atomically (the folder is created if needed)."""
     path = patient_path(directory, name)
-    _write(path, [float(v) for v in np.asarray(theta, dtype=float).reshape(2)], learner.state_dict() if learner else None, name)
+    _write(path, [float(v) for v in np.asarray(theta, dtype=float).reshape(2)], learner_state(learner) if learner else None, name)
     return path
 
 
@@ -133,7 +133,7 @@ class PatientSaver:
         self._thread.start()
 
     def submit(self, theta: Any, learner: Pi2Learner | None) -> None:
-        state = learner.state_dict() if learner is not None else None  # a snapshot, taken now
+        state = learner_state(learner) if learner is not None else None  # a snapshot, taken now
         with self._cond:
             self._pending = ([float(v) for v in np.asarray(theta, dtype=float).reshape(2)], state)
             self._cond.notify()

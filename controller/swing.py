@@ -19,7 +19,7 @@ from config.controller_schema import ControllerConfig
 from config.files import write_text
 from config.errors import AiderError
 from controller.demonstration import demonstration_hash, swing_demonstration
-from controller.dmp import DmpParams, DmpWeights, fit
+from controller.dmp_model import DmpParams, DmpWeights, fit
 
 WEIGHTS_PATH = Path(__file__).resolve().parents[1] / "config" / "swing_weights.json"
 FORMAT = 1

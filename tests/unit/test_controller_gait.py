@@ -17,7 +17,8 @@ from controller import factory
 from controller import kinematics as kin
 from controller.dmp import Dmp
 from controller.estimator import Estimate, Measurements
-from controller.gait import LEFT, RIGHT, GaitPlanner, StickTracker, minimum_jerk
+from controller.gait import LEFT, RIGHT, GaitPlanner, minimum_jerk
+from controller.sticks import StickTracker
 from controller.swing import load_swing
 
 CFG = load_config(default_config_path()).controller

@@ -22,7 +22,8 @@ from controller.demonstration import (
     lift_profile,
     swing_demonstration,
 )
-from controller.dmp import Dmp, DmpError, DmpParams, DmpWeights, basis, fit, forcing, phase, reference_rollout
+from controller.dmp import Dmp, reference_rollout
+from controller.dmp_model import DmpError, DmpParams, DmpWeights, basis, fit, forcing, phase
 
 DT_S = 0.02  # one controller tick
 TAU_S = 1.2

@@ -94,6 +94,32 @@ def test_the_tick_is_defined_once_in_the_clock_module():
     assert not offenders, offenders
 
 
+# The controller's core sees typed data only (controller/interfaces.py); from protocol/ these
+# modules of enums and records, nothing about frames (catalog, codec, counters, clock).
+CORE_PROTOCOL_IMPORTS = {"protocol.enums", "protocol.commands"}
+
+
+def test_the_controller_core_knows_no_frame():
+    """controller/core.py imports from protocol/ only its typed data, and names no message or
+    signal of the DBC: the hardware (controller/cansystem.py, controller/hardware.py) maps them."""
+    from protocol.catalog import default_catalog
+
+    path = ROOT / "controller" / "core.py"
+    tree = ast.parse(path.read_text(), filename=str(path))
+    modules = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
+    modules |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    assert {m for m in modules if m.split(".")[0] == "protocol"} <= CORE_PROTOCOL_IMPORTS, modules
+    catalog = default_catalog()
+    names = {m.name for m in catalog.messages} | {s.name for m in catalog.messages for s in m.signals}
+    strings = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)}
+    assert not names & strings, names & strings
+
+
+def test_no_controller_module_is_over_400_lines():
+    long = {p.name: n for p in (ROOT / "controller").rglob("*.py") if (n := len(p.read_text().splitlines())) > 400}
+    assert not long, long
+
+
 def test_test_modules_import_no_other_test_module():
     """Shared test helpers live in tests/support (and the fixtures in tests/conftest.py); a test
     module never imports another one."""

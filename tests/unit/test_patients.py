@@ -14,6 +14,7 @@ import pytest
 from config import default_config_path, load_config, with_overrides
 from config.errors import AiderError
 from controller import factory, patients
+from controller.pi2 import learner_state
 from controller.patients import (
     PatientError,
     PatientSaver,
@@ -77,7 +78,7 @@ def test_a_patient_file_round_trips_theta_and_the_learner_state(tmp_path):
     assert record.name == "anna-1"
     assert record.theta == tuple(float(v) for v in theta)
     restored = restore_learner(record, np.random.default_rng(0), path)
-    assert restored.state_dict() == pi2.state_dict()
+    assert learner_state(restored) == learner_state(pi2)
     assert restored.n_updates == 1 and restored.rollouts_in_batch == 1
     np.testing.assert_array_equal(restored.evaluation_theta(), theta)
 
@@ -179,7 +180,7 @@ def test_a_theta_outside_the_learning_bounds_is_an_error(tmp_path):
 
 @pytest.mark.parametrize("corrupt", ["format", "theta outside its bounds", "eps of another theta", "unknown parameter", "not a dict"])
 def test_a_corrupt_learner_state_is_an_error_naming_the_file(tmp_path, corrupt):
-    state = learner_with_an_update().state_dict()
+    state = learner_state(learner_with_an_update())
     if corrupt == "format":
         state["format"] = "something else"
     elif corrupt == "theta outside its bounds":
@@ -257,7 +258,7 @@ def test_close_writes_what_is_pending(tmp_path, monkeypatch):
     assert saver.writes == 1
     record = load_patient(tmp_path, "p")
     assert record.theta == tuple(float(v) for v in pi2.evaluation_theta())
-    assert record.learner_state == as_json(pi2.state_dict())
+    assert record.learner_state == as_json(learner_state(pi2))
 
 
 def test_the_saver_snapshots_the_learner_when_submitted(tmp_path, monkeypatch):
@@ -265,7 +266,7 @@ def test_the_saver_snapshots_the_learner_when_submitted(tmp_path, monkeypatch):
     release = threading.Event()
     monkeypatch.setattr(patients, "_write", lambda *a: (release.wait(30), real_write(*a)))
     pi2 = learner_with_an_update()
-    before = pi2.state_dict()
+    before = learner_state(pi2)
     saver = PatientSaver(tmp_path, "p")
     saver.submit(pi2.evaluation_theta(), pi2)
     pi2.ask()  # the learner goes on learning before the write happened

@@ -11,13 +11,15 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-import controller.pi2 as pi2mod
+import controller.pi2.learner as learner_module
 from controller.pi2 import (
     LearnerError,
     Pi2Learner,
     Pi2Params,
     cost_to_go,
     costs_to_weights,
+    learner_from_state,
+    learner_state,
     pi2_update,
     pibb_update,
     rollout_cost,
@@ -295,7 +297,7 @@ def test_ask_is_constant_within_a_rollout_and_eps_is_the_clipped_one():
     L.tell_step(1.0)
     L.tell_step(1.0)
     L.end_rollout(False)
-    np.testing.assert_array_equal(L.state_dict()["batch"][0]["eps"], th - np.array(B))  # the clipped eps
+    np.testing.assert_array_equal(learner_state(L)["batch"][0]["eps"], th - np.array(B))  # the clipped eps
     np.testing.assert_array_equal(L.theta, B)  # no update after one of two roll-outs
 
 
@@ -382,7 +384,7 @@ def test_reuse_best_carries_rollouts_into_the_next_batch():
         L.tell_step(c)
         L.end_rollout(False)
     assert L.n_updates == 1 and L.rollouts_in_batch == 1
-    kept = L.state_dict()["batch"][0]
+    kept = learner_state(L)["batch"][0]
     np.testing.assert_array_equal(kept["theta"], used[1])  # the cheapest
     np.testing.assert_allclose(kept["eps"], used[1] - L.theta)  # re-expressed around the new theta
     walk(L, [1.0])
@@ -437,7 +439,7 @@ def test_overflowing_rollout_cost_is_rejected():
     walk(L, [1e308, 1e308])
     walk(L, [1.0, 1.0])
     assert L.rejection_count == 1 and "overflow" in L.rejections[0].reason
-    json.dumps(L.state_dict(), allow_nan=False)
+    json.dumps(learner_state(L), allow_nan=False)
 
 
 @pytest.mark.parametrize(
@@ -445,7 +447,7 @@ def test_overflowing_rollout_cost_is_rejected():
     [(np.array([math.inf, 0.0]), "non-finite"), (np.array([100.0, 0.0]), "outside the bounds")],
 )
 def test_bad_update_result_is_rejected(monkeypatch, bad, reason):
-    monkeypatch.setattr(pi2mod, "pi2_update", lambda *a, **k: bad)
+    monkeypatch.setattr(learner_module, "pi2_update", lambda *a, **k: bad)
     L = Pi2Learner(toy(rollouts_per_update=2, steps_per_rollout=1), A, rng())
     walk(L, [1.0])
     assert walk(L, [2.0]) is None
@@ -455,7 +457,7 @@ def test_bad_update_result_is_rejected(monkeypatch, bad, reason):
 
 def test_rounding_just_past_a_bound_is_clipped_not_rejected(monkeypatch):
     # theta at alpha = 0 (its upper bound); an update a rounding error past it stays at the bound.
-    monkeypatch.setattr(pi2mod, "pi2_update", lambda *a, **k: np.array([1e-15, 0.0]))
+    monkeypatch.setattr(learner_module, "pi2_update", lambda *a, **k: np.array([1e-15, 0.0]))
     L = Pi2Learner(toy(rollouts_per_update=2, steps_per_rollout=1), (0.0, 0.5), rng())
     walk(L, [1.0])
     assert walk(L, [2.0]) is not None
@@ -510,7 +512,7 @@ def test_learner_bounds_and_finiteness_always_hold(setup, data):
         assert np.isfinite(t).all() and (t >= lo).all() and (t <= hi).all()
     for rec in L.history:
         assert math.isfinite(rec.mean_cost) and math.isclose(sum(rec.weights), 1.0, rel_tol=1e-9)
-    json.dumps(L.state_dict(), allow_nan=False)  # always strict JSON
+    json.dumps(learner_state(L), allow_nan=False)  # always strict JSON
 
 
 # ---------------------------------------------------------------------------------------------
@@ -529,54 +531,25 @@ def _partly_trained(seed: int = 8) -> Pi2Learner:
 
 def test_state_dict_round_trip_and_same_continuation():
     L = _partly_trained()
-    d = L.state_dict()
-    L2 = Pi2Learner.from_state_dict(json.loads(json.dumps(d)), rng(99))
-    assert L2.state_dict() == d
+    d = learner_state(L)
+    L2 = learner_from_state(json.loads(json.dumps(d)), rng(99))
+    assert learner_state(L2) == d
     assert L2.history == L.history and L2.rejections == L.rejections
     np.testing.assert_array_equal(L2.theta, L.theta)
     # Same generator -> the restored learner continues exactly like one restored from the dict.
-    L = Pi2Learner.from_state_dict(d, rng(5))
-    L2 = Pi2Learner.from_state_dict(json.loads(json.dumps(d)), rng(5))
+    L = learner_from_state(d, rng(5))
+    L2 = learner_from_state(json.loads(json.dumps(d)), rng(5))
     for _ in range(4):
         np.testing.assert_array_equal(L.ask(), L2.ask())
         assert walk(L, [1.0] * 4) == walk(L2, [1.0] * 4)
-
-
-def test_save_load_round_trip(tmp_path):
-    L = _partly_trained()
-    path = tmp_path / "patient-7.pi2.json"
-    L.save(path)
-    text = path.read_text()
-    assert "NaN" not in text and "Infinity" not in text  # strict JSON
-    L2 = Pi2Learner.load(path, rng(1))
-    assert L2.state_dict() == L.state_dict()
-    assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no temporary file left
-    L2.save(path)  # overwrite in place
-    assert Pi2Learner.load(path, rng(2)).state_dict() == L.state_dict()
 
 
 def test_unfinished_rollout_is_not_saved():
     L = Pi2Learner(toy(rollouts_per_update=2, steps_per_rollout=3), A, rng())
     L.ask()
     L.tell_step(1.0)
-    L2 = Pi2Learner.from_state_dict(L.state_dict(), rng())
+    L2 = learner_from_state(learner_state(L), rng())
     assert not L2.in_rollout and L2.rollouts_in_batch == 0
-
-
-def test_failed_save_keeps_the_old_file(tmp_path, monkeypatch):
-    path = tmp_path / "state.json"
-    L = _partly_trained()
-    L.save(path)
-    before = path.read_bytes()
-
-    def boom(src, dst):
-        raise OSError("disk full")
-
-    monkeypatch.setattr(pi2mod.os, "replace", boom)
-    with pytest.raises(OSError):
-        _partly_trained(seed=9).save(path)
-    assert path.read_bytes() == before
-    assert [p.name for p in tmp_path.iterdir()] == ["state.json"]
 
 
 @pytest.mark.parametrize(
@@ -594,20 +567,11 @@ def test_failed_save_keeps_the_old_file(tmp_path, monkeypatch):
     ],
 )
 def test_malformed_state_raises_learner_error(corrupt):
-    d = _partly_trained().state_dict()
+    d = learner_state(_partly_trained())
     corrupt(d)
     with pytest.raises(LearnerError) as info:
-        Pi2Learner.from_state_dict(d, rng())
+        learner_from_state(d, rng())
     assert "\n" not in str(info.value)
-
-
-def test_load_of_garbage_raises_learner_error(tmp_path):
-    path = tmp_path / "x.json"
-    path.write_text("{not json")
-    with pytest.raises(LearnerError):
-        Pi2Learner.load(path, rng())
-    with pytest.raises(LearnerError):
-        Pi2Learner.load(tmp_path / "missing.json", rng())
 
 
 # ---------------------------------------------------------------------------------------------
@@ -680,16 +644,18 @@ def test_toy_task_converges_from_the_papers_starts(start):
 
 
 def test_module_imports_nothing_it_must_not():
-    tree = ast.parse((ROOT / "controller" / "pi2.py").read_text())
-    names = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            names.update(a.name.split(".")[0] for a in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            names.add((node.module or "").split(".")[0])
-    assert not names & {"sim", "nodes", "time", "random", "datetime"}
-    src = (ROOT / "controller" / "pi2.py").read_text()
-    assert "np.random.seed" not in src and "np.random.normal" not in src
+    """The learner is pure: no clock, no global random state, no file or socket."""
+    for path in (ROOT / "controller" / "pi2").glob("*.py"):
+        tree = ast.parse(path.read_text())
+        names = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                names.update(a.name.split(".")[0] for a in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                names.add((node.module or "").split(".")[0])
+        assert not names & {"sim", "nodes", "time", "random", "datetime", "os", "socket", "tempfile"}, path
+        src = path.read_text()
+        assert "np.random.seed" not in src and "np.random.normal" not in src and "open(" not in src, path
 
 
 def test_batch_interface_equals_rollouts_one_after_another():

@@ -19,7 +19,7 @@ from config.errors import AiderError
 from controller import factory
 from controller.compensation import StepBounds
 from controller.patients import PatientError, load_patient, save_patient
-from controller.pi2 import UpdateRecord
+from controller.pi2 import UpdateRecord, learner_state
 from controller.policy import PolicyError, StepPolicy, StepRecord
 
 BASE = load_config(default_config_path())
@@ -139,7 +139,7 @@ def test_every_second_landed_step_closes_a_gait_cycle_costing_the_mean_of_the_tw
     walk_cycle(policy, 2, 70.0, 80.0)  # the N-th cycle ends the roll-out
     assert spy.calls == [None]  # after every roll-out; no update before K of them
     assert policy.cycle_costs == [] and not policy.learner.in_rollout
-    batch = policy.learner.state_dict()["batch"]
+    batch = learner_state(policy.learner)["batch"]
     assert len(batch) == 1 and batch[0]["costs"] == [pytest.approx(37.5), pytest.approx(75.0)] and not batch[0]["fell"]
 
 
@@ -181,7 +181,7 @@ def test_a_fall_ends_the_rollout_with_the_fall_flag_and_drops_the_half_cycle():
     policy.fell()
     assert spy.calls == [None]
     assert not policy.learner.in_rollout and policy.cycle_costs == []
-    batch = policy.learner.state_dict()["batch"]
+    batch = learner_state(policy.learner)["batch"]
     assert len(batch) == 1 and batch[0]["fell"] is True and batch[0]["costs"] == [pytest.approx(61.0)]
     policy.fell()  # no roll-out running: nothing to end
     assert spy.calls == [None]
