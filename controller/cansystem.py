@@ -46,6 +46,14 @@ SENSOR_MESSAGES = (
 
 
 @dataclass
+class BusCounters:
+    timeouts: int = 0  # ticks whose node frames were not all in by the read's deadline
+    frames_sent: int = 0
+    send_failures: int = 0  # failed sends (each retried once)
+    drained_max: int = 0  # most frames read in one tick
+
+
+@dataclass
 class NodeState:
     nmt: NmtState | None = None  # from its heartbeat (None: never heard)
     status: Any = None  # the newest JOINT_STATUS values
@@ -90,6 +98,7 @@ class CanSystem:
         self._integrity: deque[tuple[int, str]] = deque()  # (tick, reason) of the nodes' damaged frames
         self._error_frame_tick = -(10**9)  # the last error frame's tick
         self._failed_sends: deque[int] = deque(maxlen=safety.send_failure_ticks)  # ticks with a failed send
+        self.counters = BusCounters()
 
     def operational_nodes(self) -> set[str]:
         """The nodes whose heartbeat says OPERATIONAL: a tick's read waits for their frames."""

@@ -14,12 +14,12 @@ frames, is :class:`~controller.cansystem.CanSystem`'s.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from typing import Protocol
 
 import can
 
 from config.controller_schema import ControllerConfig
-from controller.cansystem import CanSystem
+from controller.cansystem import BusCounters, CanSystem, NodeState
 from controller.interfaces import Commands, Snapshot
 from protocol.bus import send_of
 from protocol.busload import wire_time_ns
@@ -28,12 +28,19 @@ from protocol.codec import Codec, Decoded
 from protocol.e2e import Receiver, Transmitter
 
 
-@dataclass
-class BusCounters:
-    timeouts: int = 0  # ticks whose node frames were not all in by the read's deadline
-    frames_sent: int = 0
-    send_failures: int = 0  # failed sends (each retried once)
-    drained_max: int = 0  # most frames read in one tick
+class Hardware(Protocol):
+    """What a loop needs of its hardware (ros2_control's system interface)."""
+
+    clock: Clock
+    idle_ns: int  # of the last read: waiting for (or running) the nodes, not the controller's work
+    nodes: dict[str, NodeState]
+    counters: BusCounters
+
+    def operational_nodes(self) -> set[str]: ...
+
+    def read(self, tick: int, until_ns: int, first_read_ns: int = 0) -> Snapshot: ...
+
+    def write(self, tick: int, commands: Commands) -> None: ...
 
 
 class CanHardware(CanSystem):
@@ -53,7 +60,6 @@ class CanHardware(CanSystem):
         self.max_frames = max_frames_per_tick  # per 20 ms read (1 Mbit/s carries at most about 180 frames in 20 ms)
         self.pump = pump
         self.clock = clock or MonotonicClock()
-        self.counters = BusCounters()
         self.idle_ns = 0  # of this tick: waiting for (or running) the nodes
         self.tick = -1
         self._status_ids = {self.catalog.message("JOINT_STATUS", n).frame_id: n for n in self.node_names}
@@ -170,24 +176,34 @@ class CanHardware(CanSystem):
 
 
 class ReplayHardware(CanSystem):
-    """A recorded trace's node frames as the hardware: ``read`` feeds a tick's frames through the
-    receiver, ``write`` returns the frames the controller would have sent."""
+    """A recorded trace's node frames as the hardware: :meth:`feed` gives the frames the next
+    ``read`` reads (through the receiver), ``write`` keeps the frames the controller would have
+    sent (:attr:`written`)."""
 
-    def __init__(self, cfg: ControllerConfig, *, codec: Codec, max_delta_counter: int) -> None:
+    def __init__(self, cfg: ControllerConfig, *, codec: Codec, max_delta_counter: int, clock: Clock | None = None) -> None:
         super().__init__(cfg, catalog=codec.catalog)
         self.rx = Receiver(codec, max_delta_counter=max_delta_counter)
+        self.clock = clock or MonotonicClock()
+        self.idle_ns = 0  # a replay never waits
         self.frames_fed = 0
         self.frames_rejected = 0
+        self.written: list[tuple[str, tuple]] = []
+        self._fed: tuple[Iterable[can.Message], Iterable[can.Message]] = ((), ())
 
-    def read(self, tick: int, queued: Iterable[can.Message], frames: Iterable[can.Message]) -> Snapshot:
-        """The tick's snapshot from the frames read before its SYNC (``queued``: late answers) and after it."""
-        for batch, late in ((queued, True), (frames, False)):
+    def feed(self, queued: Iterable[can.Message], frames: Iterable[can.Message]) -> None:
+        """The next tick's frames: ``queued``, read before its SYNC (late answers), then ``frames``."""
+        self._fed = (queued, frames)
+
+    def read(self, tick: int, until_ns: int = 0, first_read_ns: int = 0) -> Snapshot:
+        """The tick's snapshot from the fed frames (the deadlines are the recording's, already passed)."""
+        for batch, late in zip(self._fed, (True, False)):
             for msg in batch:
                 result = self.rx.receive(msg)
                 self.frames_fed += 1
                 self.frames_rejected += type(result) is not Decoded
                 self.accept(result, tick, late)
+        self._fed = ((), ())
         return self.snapshot(tick)
 
-    def write(self, tick: int, commands: Commands) -> list[tuple[str, tuple]]:
-        return self.frames(tick, commands)
+    def write(self, tick: int, commands: Commands) -> None:
+        self.written = self.frames(tick, commands)

@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from controller.core import ControllerCore, TickResult
-from controller.hardware import CanHardware
+from controller.hardware import CanHardware, Hardware
 from controller.telemetry import TelemetryLog
 from controller.timing import TickStats
 from protocol.clock import MAX_STALLS, STALL_NS, TICK_NS, TickTimer
@@ -34,9 +34,10 @@ class LockstepLoop:
     """Lock-step: each tick waits for the nodes' frames of its SYNC (see the module doc)."""
 
     def __init__(
-        self, core: ControllerCore, hardware: CanHardware, *, tick_timeout_s: float = 2.0, boot_wait_s: float = 0.05,
-        telemetry: TelemetryLog | None = None,
+        self, core: ControllerCore, hardware: Hardware, *, tick_timeout_s: float = 2.0, boot_wait_s: float = 0.05,
+        telemetry: TelemetryLog | None = None, first_tick: int = 0,
     ) -> None:
+        """``first_tick``: the number of the first tick (a recording's, where it does not start at 0)."""
         self.core, self.hardware = core, hardware
         self.tick_timeout_s, self.boot_wait_s = tick_timeout_s, boot_wait_s
         self.tick_ns = TICK_NS
@@ -44,7 +45,7 @@ class LockstepLoop:
         self.clock = hardware.clock
         self.stats = TickStats(self.tick_ns)
         self.report = LoopReport()
-        self.tick = -1
+        self.tick = first_tick - 1
         self._ran_ns = 0  # the thread's CPU time in the last tick
 
     def _tick(self, k: int, start_ns: int, read_until_ns: int, lateness_ns: int, first_read_ns: int = 0) -> TickResult:

@@ -27,6 +27,7 @@ from controller.core import ControllerCore, TickResult
 from controller.hardware import CanHardware
 from controller.faults import FaultKind
 from controller.loop import LockstepLoop
+from controller.session import Session
 from controller.policy import StepPolicy, StepRecord
 from controller.telemetry import TelemetryLog
 from protocol.bus import virtual_bus
@@ -35,7 +36,7 @@ from protocol.enums import GaitState
 from sim.pace import default_max_time_s
 
 #: called after every tick with the tick's result and the controller core
-TickHook = Callable[[TickResult, ControllerCore], None]
+TickHook = Callable[[TickResult, Session], None]
 
 
 @dataclass
@@ -159,26 +160,26 @@ STALL_S = 40.0
 
 
 def drive(
-    loop: LockstepLoop, outcome: WalkOutcome, *, cycles: int, max_ticks: int,
+    session: Session, outcome: WalkOutcome, *, cycles: int, max_ticks: int,
     truth_ratio: Callable[[], float] | None = None, fallen: Callable[[], str | None] | None = None,
     on_tick: TickHook | None = None, stall_s: float = STALL_S,
 ) -> TickResult | None:
-    """Run ``loop`` with walking asked until ``cycles`` gait cycles have landed, a fall, a FAULT, a
+    """Run ``session`` with walking asked until ``cycles`` gait cycles have landed, a fall, a FAULT, a
     HOLD, ``max_ticks``, or ``stall_s`` of simulated time without a step landing (both a stall); fills
     ``outcome`` (the steps are the core's own list)."""
-    core = loop.core
-    core.request_walk()
+    core, loop = session.core, session.loop
+    session.operator.start()
     result = None
     stall_ticks = int(stall_s * 1000 / TICK_MS)
     landed, last_landing = 0, 0
     for tick in range(max_ticks):
-        result = loop.step()
+        result = session.step()
         if truth_ratio is not None and result.estimate is not None and math.isfinite(result.estimate.x_ratio):
             truth = truth_ratio()  # the simulation's ground truth costs about 5 % of a walk: only when compared
             if math.isfinite(truth):
                 outcome.ratio_errors.append(abs(result.estimate.x_ratio - truth))
         if on_tick is not None:
-            on_tick(result, core)
+            on_tick(result, session)
         fall = fallen() if fallen is not None else None
         if fall:
             outcome.fell, outcome.fall_reason = True, fall
@@ -215,7 +216,7 @@ def drive(
 
 def walk(
     cfg: Config, *, cycles: int, seed: int, mode: str | None = None, policy: StepPolicy | None = None,
-    max_time_s: float | None = None, on_tick: Callable[[TickResult, ControllerCore, Any], None] | None = None,
+    max_time_s: float | None = None, on_tick: Callable[[TickResult, Session, Any], None] | None = None,
     channel: str | None = None, telemetry: TelemetryLog | None = None, stall_s: float = STALL_S,
     compare_ratio: bool = True,
 ) -> WalkOutcome:
@@ -243,12 +244,12 @@ def walk(
             host.boot()
             hardware = CanHardware(cfg.controller, ctl_bus, pump=lambda: host.poll(0.0),
                                    max_delta_counter=cfg.protocol.max_delta_counter)
-            loop = LockstepLoop(core, hardware, telemetry=telemetry)
+            session = Session(LockstepLoop(core, hardware, telemetry=telemetry))
             drive(
-                loop, outcome, cycles=cycles, max_ticks=int(max_time_s * 1000 / TICK_MS),
+                session, outcome, cycles=cycles, max_ticks=int(max_time_s * 1000 / TICK_MS),
                 truth_ratio=(lambda: host.truth()["x_ratio"]) if compare_ratio else None,
                 fallen=lambda: host.patient.fall,
-                on_tick=None if on_tick is None else (lambda r, c: on_tick(r, c, host)), stall_s=stall_s,
+                on_tick=None if on_tick is None else (lambda r, s: on_tick(r, s, host)), stall_s=stall_s,
             )
             outcome.sim_time_s, outcome.patient = host.patient.t, host.patient.patient_state()
             # the simulation's own steps (foot contacts): the six arm joints' absolute torques, summed
@@ -272,9 +273,9 @@ def walk_controller(
     outcome = WalkOutcome(mode=mode, seed=seed, policy=core.policy.mode, steps=core.steps)
     clock = MonotonicClock()
     t0 = clock.now_ns()
-    loop = LockstepLoop(core, CanHardware(cfg.controller, bus, max_delta_counter=cfg.protocol.max_delta_counter),
-                        telemetry=telemetry)
-    drive(loop, outcome, cycles=cycles, max_ticks=int(max_time_s * 1000 / TICK_MS), on_tick=on_tick)
+    session = Session(LockstepLoop(core, CanHardware(cfg.controller, bus, max_delta_counter=cfg.protocol.max_delta_counter),
+                                   telemetry=telemetry))
+    drive(session, outcome, cycles=cycles, max_ticks=int(max_time_s * 1000 / TICK_MS), on_tick=on_tick)
     outcome.sim_time_s = outcome.ticks * TICK_MS / 1000.0
     outcome.wall_time_s = (clock.now_ns() - t0) / 1e9
     return outcome

@@ -45,7 +45,7 @@ def walked():
     estimates: dict[int, np.ndarray] = {}
     with virtual_bus(channel) as listener:
         outcome = walk(CFG, cycles=2, seed=0, channel=channel, compare_ratio=False,
-                       on_tick=lambda r, core, host: estimates.__setitem__(r.tick, None if r.estimate is None else r.estimate.com))
+                       on_tick=lambda r, session, host: estimates.__setitem__(r.tick, None if r.estimate is None else r.estimate.com))
         frames = []
         while (msg := listener.recv(0)) is not None:
             frames.append(Frame.from_message(msg))
@@ -359,7 +359,7 @@ def test_a_browser_follows_a_walk_and_shows_a_node_fault(tmp_path):
     pace = Pace(4.0)
     outcome: list = []
     walker = threading.Thread(target=lambda: outcome.append(
-        walk(cfg, cycles=2, seed=0, channel=channel, compare_ratio=False, on_tick=lambda r, core, host: pace(r.tick))))
+        walk(cfg, cycles=2, seed=0, channel=channel, compare_ratio=False, on_tick=lambda r, session, host: pace(r.tick))))
     try:
         url = view.start()
         with browser.Browser(url) as page:

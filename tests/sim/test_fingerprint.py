@@ -21,7 +21,7 @@ def walk_fingerprint(*, cycles: int, seed: int) -> tuple[str, int]:
     channel = f"aider-fingerprint-{seed}"
     with virtual_bus(channel) as sniffer:  # a third node on the channel: it hears both sides
 
-        def on_tick(result, core, host) -> None:
+        def on_tick(result, session, host) -> None:
             while (msg := sniffer.recv(0)) is not None:
                 digest.update(msg.arbitration_id.to_bytes(4, "little") + bytes([msg.dlc]) + bytes(msg.data))
             world = host.world

@@ -487,10 +487,10 @@ def test_F29_a_critical_supply_warns_then_holds_in_double_support_and_no_step_st
         warning = [e for e in events if e.startswith("SUPPLY_LOW")]
         assert len(warning) == 1 and "below 22 V for 25 ticks): warning" in warning[0], events
         # The operator resets and starts again: the controller stands, then holds again at once.
-        rig.core.request_reset()
+        rig.operator.reset()
         assert rig.run_until(lambda r: r.state == GaitState.STAND, 100), rig.state
         steps = len(rig.core.steps)
-        rig.core.request_walk()
+        rig.operator.start()
         rig.run(20)
         assert rig.state == HOLD and len(rig.core.steps) == steps
         assert [s.cause.kind for s in stops_from(rig, t0)] == [K.SUPPLY_CRITICAL, K.SUPPLY_CRITICAL]
@@ -556,7 +556,7 @@ def test_F26_a_wall_clock_jump_changes_nothing(monkeypatch):
 
             monkeypatch.setattr(time, "time", jumping)
         with FaultRig(CFG, seed=3) as rig:
-            rig.core.request_walk()
+            rig.operator.start()
             rig.run(200)
             out = [r.state for r in rig.results]
         monkeypatch.undo()

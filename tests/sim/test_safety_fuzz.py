@@ -64,7 +64,7 @@ def test_a_hundred_thousand_random_frames_break_no_invariant():
     # A tick whose node frames the attack has made unacceptable waits this long for them (the
     # attack makes most ticks such ticks): short, so that the run takes seconds.
     with FaultRig(CFG, seed=11, tick_timeout_s=0.002) as rig:
-        rig.core.request_walk()
+        rig.operator.start()
         rig.run(60)  # standing, then walking
         states = set()
         with rig.foreign() as intruder:
@@ -72,8 +72,8 @@ def test_a_hundred_thousand_random_frames_break_no_invariant():
                 for msg in frames[start:start + PER_TICK]:
                     intruder.send(msg)
                 if rig.tick % 100 == 0:
-                    rig.core.request_reset()
-                    rig.core.request_walk()
+                    rig.operator.reset()
+                    rig.operator.start()
                 rig.step()
                 states.add(rig.state)
         stats = rig.hardware.rx.stats

@@ -60,16 +60,16 @@ class Pipeline(RuleBasedStateMachine):
 
     @rule()
     def reset(self) -> None:
-        self.rig.core.request_reset()
+        self.rig.operator.reset()
 
     @rule()
     def start(self) -> None:
-        self.rig.core.request_walk()
+        self.rig.operator.start()
 
     @precondition(lambda self: self.rig.state != GaitState.INIT)
     @rule()
     def stop(self) -> None:
-        self.rig.core.request_stop()
+        self.rig.operator.stop()
 
     @invariant()
     def invariants_hold(self) -> None:

@@ -44,7 +44,7 @@ def test_a_closed_rig_is_freed_at_its_last_reference_not_by_the_garbage_collecto
     gc.disable()
     try:
         with FaultRig(cfg, seed=1, tick_timeout_s=0.005, keep_results=False) as rig:
-            rig.core.request_walk()
+            rig.operator.start()
             rig.run(20)
             assert rig.hardware.codec is rig.host.codec is rig.oracle.codec  # one stateless codec, not one per part
             refs = [weakref.ref(o) for o in (rig, rig.loop, rig.loop.stats, rig.host, rig.host.world, rig.core, rig.oracle)]

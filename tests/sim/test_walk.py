@@ -126,9 +126,9 @@ def test_a_fixed_step_policy_commands_the_same_length_every_step():
     policy, _ = factory.step_policy(BASE.controller, fixed_m=0.12)
     commanded = []
 
-    def on_tick(result, core, host):
+    def on_tick(result, session, host):
         if result.state in SWINGS:
-            commanded.append(core.gait.step_length_m)  # what the gait planner's swing goes to
+            commanded.append(session.core.gait.step_length_m)  # what the gait planner's swing goes to
 
     outcome = walk(BASE, cycles=1, seed=0, mode="sagittal", policy=policy, on_tick=on_tick)
     assert outcome.policy == "fixed" and outcome.theta is None
@@ -144,8 +144,9 @@ def test_a_step_as_placed_is_the_feet_spacing_measured_when_the_next_swing_start
     policy, _ = factory.step_policy(BASE.controller, fixed_m=0.12)
     truth = {}  # swing-start tick -> the simulated ankles' fore-aft distance, by leg
 
-    def on_tick(result, core, host):
-        if result.state in SWINGS and core.steps and core.steps[-1].swing_tick == result.tick:
+    def on_tick(result, session, host):
+        steps = session.core.steps
+        if result.state in SWINGS and steps and steps[-1].swing_tick == result.tick:
             x = {side: float(host.patient.ankle_xy(side)[0]) for side in "lr"}
             truth[result.tick] = {"l": x["l"] - x["r"], "r": x["r"] - x["l"]}
 

@@ -93,6 +93,7 @@ def _lockstep(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
     from controller.core import ControllerCore
     from controller.hardware import CanHardware
     from controller.loop import LockstepLoop
+    from controller.session import Session
     from nodes.host import NodesHost, SimTickTimer
     from sim.world import PhysicsTimer
     from tools.pipeline import WalkOutcome, drive, walk_config
@@ -113,16 +114,17 @@ def _lockstep(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
             core = ControllerCore(cfg.controller)
             loop = LockstepLoop(core, CanHardware(cfg.controller, ctl_bus, pump=lambda: host.poll(0.0), clock=clock,
                                                   max_delta_counter=cfg.protocol.max_delta_counter))
+            session = Session(loop)
             outcome = WalkOutcome(mode=MODE, seed=SEED, policy=core.policy.mode, steps=core.steps)
 
-            def on_tick(result: Any, _core: Any) -> None:
+            def on_tick(result: Any, _session: Any) -> None:
                 states.append(result.state.name)
                 end_ns.append(clock.now_ns())
                 sim_ns.append(sim.ns)
                 physics_ns.append(physics.ns)
 
             start = clock.now_ns()
-            drive(loop, outcome, cycles=cycles, max_ticks=max_ticks, fallen=lambda: host.patient.fall, on_tick=on_tick)
+            drive(session, outcome, cycles=cycles, max_ticks=max_ticks, fallen=lambda: host.patient.fall, on_tick=on_tick)
             physics_ticks = host.stats.physics_ticks
         finally:
             host.close()
@@ -170,6 +172,7 @@ def _realtime(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
     from controller.core import ControllerCore
     from controller.hardware import CanHardware
     from controller.loop import RealtimeLoop
+    from controller.session import Session
     from controller.timing import TickStats
     from nodes.host import NodesHost, running_in_thread
     from tools.pipeline import WalkOutcome, drive, walk_config
@@ -183,9 +186,10 @@ def _realtime(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
             with running_in_thread(host):
                 core = ControllerCore(cfg.controller)
                 loop = RealtimeLoop(core, CanHardware(cfg.controller, ctl_bus, max_delta_counter=cfg.protocol.max_delta_counter))
+                session = Session(loop)
                 outcome = WalkOutcome(mode=MODE, seed=SEED, policy=core.policy.mode, steps=core.steps)
-                drive(loop, outcome, cycles=cycles, max_ticks=max_ticks, fallen=lambda: host.patient.fall,
-                      on_tick=lambda result, _core: states.append(result.state.name))
+                drive(session, outcome, cycles=cycles, max_ticks=max_ticks, fallen=lambda: host.patient.fall,
+                      on_tick=lambda result, _session: states.append(result.state.name))
             nodes = host.status()
         finally:
             host.close()

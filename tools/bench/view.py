@@ -202,7 +202,7 @@ def _in_process_walk(cfg: Any, args: argparse.Namespace, channel: str) -> dict[s
     pace = Pace(args.pace)
     outcome = walk(cfg, cycles=args.cycles, seed=SEED, mode=MODE, channel=channel, compare_ratio=False,
                    max_time_s=args.max_ticks * TICK_S if args.max_ticks else None,
-                   on_tick=lambda result, core, host: pace(result.tick))
+                   on_tick=lambda result, session, host: pace(result.tick))
     return outcome.summary()
 
 

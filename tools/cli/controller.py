@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
 
-from protocol.enums import WALKING, DriveState, GaitState
+from protocol.enums import WALKING, GaitState
 from tools.cli.common import StopSignals, add_config_options, config_path, load_cli_config, patients_folder, positive_float, positive_int, print_json
 
 
@@ -48,24 +47,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _status_line(loop: Any, result: Any) -> str:
-    est = result.estimate
-    nodes = " ".join(f"{n.split('_')[0][0]}{n.split('_')[1][0]}:{(s.nmt.name[:4] if s.nmt is not None else '----')}"
-                     for n, s in loop.hardware.nodes.items())
-    extra = ""
-    if est is not None:
-        extra = f" | X_CoM/X_SP {est.x_ratio:.2f} | sticks loaded {sum(est.sticks_loaded)} feet {sum(est.feet_loaded)}"
-    if result.state in (GaitState.FAULT, GaitState.HOLD):  # what a reset waits for (I4): the operator sees why nothing happens
-        fsm = loop.core.fsm
-        faulted = [n for n, s in loop.hardware.nodes.items() if s.status is not None and s.status.drive_state == DriveState.FAULT]
-        extra += f" | healthy {fsm.healthy_ticks}/{fsm.reset_healthy_ticks} ticks" + (f", drive FAULT: {' '.join(faulted)}" if faulted else "")
-    return f"controller tick {result.tick} {result.state.name} | {nodes}{extra} | timeouts {loop.hardware.counters.timeouts}"
-
-
 def run(args: argparse.Namespace) -> int:
     from controller.core import ControllerCore
     from controller.hardware import CanHardware
     from controller.loop import LockstepLoop, RealtimeLoop
+    from controller.session import Session
     from controller.sdnotify import Notifier
     from controller.telemetry import TelemetryLog
     from protocol.realtime import realtime_setup
@@ -106,45 +92,33 @@ def run(args: argparse.Namespace) -> int:
                 for warning in rt.warnings:
                     print(f"aider-exo controller: warning: {warning}", file=sys.stderr)
                 loop = RealtimeLoop(core, hardware, bitrate_bit_s=cfg.bus.bitrate_bit_s, telemetry=telemetry)
+            session = Session(loop)
+            operator = session.operator
             notifier.ready("controller loop running")
             next_status = clock.now_ns()
             result = None
             stopping_since = None  # the tick at which a stop was asked
-            # --reset: the operator's one reset of the first FAULT. FAULT_RESET unlatches the nodes; the FSM
-            # leaves FAULT only on a reset once they have been healthy for reset_healthy_ticks (I4), so the
-            # FSM's reset is asked again when that holds (both sends carry FAULT_RESET to the nodes).
-            reset = "armed" if args.reset else "off"  # armed -> nodes (FAULT_RESET sent) -> done
-            reset_ticks: list[int] = []  # the ticks in which the reset was asked
+            reset = "armed" if args.reset else "off"  # --reset: the operator's one reset procedure, at the first FAULT
             while args.ticks is None or loop.report.ticks < args.ticks:
-                state = result.state if result is not None else GaitState.INIT
+                state = session.state
                 if stopping_since is None:
                     if (args.walk or args.cycles is not None) and state == GaitState.STAND and not core.steps:
-                        core.request_walk()  # the operator's start: once, when first standing
+                        operator.start()  # once, when first standing
                     landed = sum(1 for step in core.steps if step.landed)
                     if stop.requested or (args.cycles is not None and landed >= 2 * args.cycles):
-                        core.request_stop()  # the swing in progress ends first
+                        operator.stop()  # the swing in progress ends first
                         stopping_since = loop.report.ticks
                 elif state not in WALKING or loop.report.ticks - stopping_since > 500:
                     break
-                asked = False
                 if reset == "armed" and state == GaitState.FAULT:
-                    core.request_reset()
-                    reset, asked = "nodes", True
-                elif reset == "nodes":
-                    if state != GaitState.FAULT:
-                        reset = "done"
-                    elif (core.fsm.healthy_ticks >= core.fsm.reset_healthy_ticks and result.estimate is not None
-                          and all(result.estimate.sticks_loaded)):
-                        core.request_reset()
-                        asked = True
-                if args.cycles is not None and state in (GaitState.FAULT, GaitState.HOLD) and reset not in ("armed", "nodes"):
+                    operator.recover()
+                    reset = "spent"
+                if args.cycles is not None and state in (GaitState.FAULT, GaitState.HOLD) and reset != "armed" and not operator.recovering:
                     break  # a walk of N cycles ends at a fault (on the robot the loop holds and waits for a reset)
-                result = loop.step()
-                if asked:
-                    reset_ticks.append(result.tick)
+                result = session.step()
                 notifier.ping(clock.now_ns())  # from the loop itself: a hung loop stops the pings
                 if not args.quiet and clock.now_ns() >= next_status:
-                    print(_status_line(loop, result), file=sys.stderr, flush=True)
+                    print(f"controller {session.status().line()}", file=sys.stderr, flush=True)
                     next_status = clock.now_ns() + 1_000_000_000
         finally:
             notifier.stopping()
@@ -176,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
         "steps": [step.as_dict() for step in core.steps],
         "patient_file": {"path": str(saver.path), "writes": saver.writes, "errors": saver.errors} if saver else None,
         "stopped_by": stop.name,
-        "resets": reset_ticks,
+        "resets": [tick for tick, button in operator.presses if button == "reset"],
     }
     if args.json:
         print_json(summary)

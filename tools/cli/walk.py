@@ -69,23 +69,15 @@ class StatusLine:
         self.last_s = -math.inf
         self.steps = 0
 
-    def __call__(self, result: Any, core: Any) -> None:
+    def __call__(self, result: Any, session: Any) -> None:
         if not self.enabled:
             return
         t = result.tick * TICK_S
-        new_step = len(core.steps) != self.steps
-        if not (self.tty or new_step or t - self.last_s >= 1.0):
+        steps = len(session.core.steps)
+        if not (self.tty or steps != self.steps or t - self.last_s >= 1.0):
             return
-        self.steps, self.last_s = len(core.steps), t
-        m, est = result.measurements, result.estimate
-        step = core.steps[-1] if core.steps else None
-        text = f"walk {t:6.1f} s | {result.state.name:<14}"
-        if step is not None:
-            text += f" | step {step.index + 1} ({step.leg}) {step.length_m:.3f} m"
-        if m is not None:
-            text += f" | sticks {m.stick_force_n[0]:4.0f} {m.stick_force_n[1]:4.0f} N"
-        if est is not None and math.isfinite(est.x_ratio):
-            text += f" | X_CoM/X_SP {est.x_ratio:.2f}"
+        self.steps, self.last_s = steps, t
+        text = f"walk {session.status().line(t)}"
         if self.tty:
             print("\r" + text.ljust(100), end="", file=sys.stderr, flush=True)
         else:
@@ -158,8 +150,8 @@ def run(args: argparse.Namespace) -> int:
     nodes_report: dict[str, Any] | None = None
     view_report = None
 
-    def watched(result: Any, core: Any) -> None:
-        status(result, core)
+    def watched(result: Any, session: Any) -> None:
+        status(result, session)
         pace(result.tick)
 
     try:
@@ -169,8 +161,8 @@ def run(args: argparse.Namespace) -> int:
         if two_processes:
             outcome, nodes_report = _walk_two_processes(args, cfg, policy, watched, telemetry)
         else:
-            def on_tick(result: Any, core: Any, host: Any) -> None:
-                watched(result, core)
+            def on_tick(result: Any, session: Any, host: Any) -> None:
+                watched(result, session)
                 if recorder is not None:
                     x = float(host.world.link_frame("trunk")[0][0])
                     recorder.maybe_capture(host.world.client, host.patient.t, camera.follow(x))
@@ -264,8 +256,8 @@ def _walk_two_processes(args: argparse.Namespace, cfg: Any, policy: Any, status:
             cmd[2:2] = ["--config", args.config]
         estimates: dict[int, float] = {}
 
-        def on_tick(result: Any, core: Any) -> None:
-            status(result, core)
+        def on_tick(result: Any, session: Any) -> None:
+            status(result, session)
             if result.estimate is not None:
                 estimates[result.tick] = result.estimate.x_ratio
 

@@ -52,7 +52,7 @@ class Oracle:
 
     def check(self, result: TickResult, frames: list[can.Message]) -> None:
         """The invariants of one tick."""
-        k, core = result.tick, self.core
+        k = result.tick
         self.ticks += 1
         decoded = [d for d in (self.codec.decode(m.arbitration_id, m.data) for m in frames if not m.is_error_frame)
                    if type(d) is Decoded]

@@ -24,6 +24,7 @@ from config.nodes_schema import FaultConfig
 from controller.core import ControllerCore, TickResult
 from controller.hardware import CanHardware
 from controller.loop import LockstepLoop
+from controller.session import Session
 from nodes.host import NodesHost
 from protocol.bus import virtual_bus
 from protocol.codec import Codec
@@ -100,6 +101,8 @@ class FaultRig:
         self.hardware = CanHardware(cfg.controller, self.bus, codec=shared_codec(), pump=None if answering else pump,
                                     max_delta_counter=cfg.protocol.max_delta_counter)
         self.loop = LockstepLoop(self.core, self.hardware, tick_timeout_s=tick_timeout_s)
+        self.session = Session(self.loop)
+        self.operator = self.session.operator
         self.oracle = Oracle(self.core, self.hardware, codec=shared_codec())
         self.results: list[TickResult] = []
         self.keep_results = keep_results
@@ -136,7 +139,7 @@ class FaultRig:
 
     def step(self) -> TickResult:
         """One tick, then the invariants on what it put on the bus."""
-        result = self.loop.step()
+        result = self.session.step()
         frames: list[can.Message] = []
         while (m := self.listener.recv(timeout=0)) is not None:
             frames.append(m)
@@ -159,7 +162,7 @@ class FaultRig:
 
     def walk_to(self, state: GaitState, max_ticks: int = 1500) -> None:
         """Stand up, start walking and run until the FSM is in ``state``."""
-        self.core.request_walk()
+        self.operator.start()
         if not self.run_until(lambda r: r.state == state, max_ticks):
             raise AssertionError(f"not in {state.name} within {max_ticks} ticks (at {self.state.name}, tick {self.tick})")
 

@@ -186,7 +186,7 @@ def soak(
 def _episode(cfg: Config, seed: int, ticks: int, faults_per_min: float, reset_after: int, report: SoakReport) -> None:
     faults = _Faults(np.random.default_rng(seed), faults_per_min)
     with FaultRig(cfg, seed=seed % 2**31, tick_timeout_s=0.005, keep_results=False) as rig:
-        rig.core.request_walk()
+        rig.operator.start()
         stopped_at: int | None = None
         for _ in range(ticks):
             faults.maybe(rig, report.faults)
@@ -198,12 +198,12 @@ def _episode(cfg: Config, seed: int, ticks: int, faults_per_min: float, reset_af
                     stopped_at = rig.tick
                     report.stops[rig.core.fsm.transitions[-1].fault.kind.name] += 1
                 elif stopped_at is not None and rig.tick - stopped_at >= reset_after and rig.tick % reset_after == 0:
-                    rig.core.request_reset()  # the operator, after a while; the FSM decides
+                    rig.operator.reset()  # the operator, after a while; the FSM decides
             elif before == GaitState.FAULT:
                 report.resets_left_fault += 1
-                rig.core.request_walk()
+                rig.operator.start()
             elif before == GaitState.HOLD:
-                rig.core.request_walk()
+                rig.operator.start()
             if rig.host.patient.fall is not None:
                 report.falls += 1
                 break

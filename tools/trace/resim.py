@@ -10,15 +10,15 @@ is how they are fed here. (In a lock-step run every node frame of a SYNC comes b
 controller's; a frame that comes after the read ended but before the controller sends, in a real-
 time run, is taken for the tick's: the wire does not show where a read ended.) A
 :class:`controller.hardware.ReplayHardware` reads them (through the receiver with the configured
-``max_delta_counter``) into the tick's snapshot, :meth:`ControllerCore.update` runs on it, and
-the hardware's write gives the tick's frames, the controller's heartbeat and telemetry on the DBC's
-schedule among them, as the loop sends them. Both sides are compared
+``max_delta_counter``) into the tick's snapshot in a :class:`controller.session.Session` of its own,
+and what the session writes, the controller's heartbeat and telemetry on the DBC's schedule among
+them, is what the loop sent. Both sides are compared
 on the wire's grid (the new values encoded and decoded with the DBC), message by message and
 signal by signal; the first divergence names the tick, the message, the signal and both values.
 This is how a controller change is regression-tested against recorded sessions: the recorded
 run must be reproduced with zero divergence by the controller that recorded it.
 
-The operator's start (``request_walk``) is not on the bus: the recording's sidecar gives its
+The operator's start (:meth:`Operator.start`) is not on the bus: the recording's sidecar gives its
 tick (``aider-exo trace record --walk`` writes it), or the caller does (``"start"``: at each
 controller start, as ``aider-exo controller --walk`` asks it: kept until the controller stands).
 
@@ -26,7 +26,7 @@ A recording of a real-time session (the session recorder on ``can0``, ``candump 
 same way: only the SYNC frames' tick numbers cut it, never the timestamps, so wall-clock time and
 jitter do not matter, and node answers that came after the controller's frames are the late
 answers above. What differs is handled so: a tick number that jumps (the real-time loop overran
-and skipped ticks) is told to the core as the loop does (:meth:`ControllerCore.overran`); a tick
+and skipped ticks) is told to the core as the loop does (:meth:`Session.skipped`); a tick
 number that goes back (to 0: the controller was restarted) starts a fresh controller; a recording
 that starts while a controller runs (its first SYNC's tick is not 0) cannot be re-simulated from
 there, since a fresh controller does not have the running one's state (its FSM, the nodes' states,
@@ -182,9 +182,11 @@ def resimulate(frames: Iterable[Frame], controller_cfg: Any, *, codec: Codec, ma
     ``"start"`` for each run's first tick, or None."""
     from controller.core import ControllerCore
     from controller.hardware import ReplayHardware
+    from controller.loop import LockstepLoop
+    from controller.session import Session
 
     report = ResimReport()
-    core: ControllerCore | None = None
+    session: Session | None = None
     hardware: ReplayHardware | None = None
     last_tick: int | None = None
 
@@ -205,27 +207,27 @@ def resimulate(frames: Iterable[Frame], controller_cfg: Any, *, codec: Codec, ma
         started = (first and k == 0) or (not first and k < last_tick)  # a controller's start (or restart)
         if started:  # a fresh controller and hardware, as the restarted process
             count_fed()
-            core = ControllerCore(controller_cfg, policy=None)
             hardware = ReplayHardware(controller_cfg, codec=codec, max_delta_counter=max_delta_counter)
+            session = Session(LockstepLoop(ControllerCore(controller_cfg, policy=None), hardware, first_tick=k))
             report.runs += 1
             # what came after the last controller's frames, before this SYNC(0): the restarted
             # controller's preamble, as the frames before the recording's first SYNC(0) are
             preamble, late = late, []
-        elif core is not None and k > last_tick + 1:  # the real-time loop overran: ticks skipped
+        elif session is not None and k > last_tick + 1:  # the real-time loop overran: ticks skipped
             report.overruns += 1
             report.ticks_jumped += k - last_tick - 1
-            core.overran(k, k - last_tick - 1)
+            session.skipped(k, k - last_tick - 1)
         last_tick = k
-        if core is None:
+        if session is None:
             report.skipped_ticks += 1
             late = tick.late_frames  # the next controller start's preamble, if it follows
             continue
         if (request_walk_tick == "start" and started) or (isinstance(request_walk_tick, int) and k == request_walk_tick):
-            core.request_walk()
-        read = [*preamble, *tick.node_frames] if started else tick.node_frames
-        result = core.update(hardware.read(k, late, read))
+            session.operator.start()
+        hardware.feed(late, [*preamble, *tick.node_frames] if started else tick.node_frames)
+        result = session.step()
         late = tick.late_frames
-        sent = hardware.write(k, result.commands)
+        sent = hardware.written
         recorded = []
         for frame in tick.controller_frames:
             decoded = codec.decode(frame.arbitration_id, frame.data)
