@@ -1,4 +1,14 @@
-"""``aider-exo controller``: the main controller's 20 ms loop on a CAN bus."""
+"""aider-exo controller: the main controller's 20 ms loop on a CAN bus.
+
+The main controller: SYNC every tick, the nodes' frames read and checked, node supervision, state
+estimation and the gait FSM, the DMP swing with the CoM-compensated step length, joint commands
+through the safety envelope, its heartbeat. It brings the nodes up and stands; it walks only when
+the operator asks for it (--walk, or --cycles N), so a controller restarted after a crash never
+walks on its own (docs/FAULTS.md F22). Lock-step: each tick waits for the nodes' frames of its SYNC;
+real time (default): absolute 20 ms deadlines with the real-time set-up where the OS permits it. A
+one-line status per second on stderr; SIGINT or SIGTERM asks for a stop (the swing in progress ends
+first), then the run ends with cyclictest-style tick statistics.
+"""
 
 from __future__ import annotations
 
@@ -13,16 +23,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "controller",
         help="run the main controller's tick loop on a CAN bus (nodes up, supervision, estimation, walking)",
-        description=(
-            "The main controller: SYNC every tick, the nodes' frames read and checked, node supervision, state "
-            "estimation and the gait FSM, the DMP swing with the CoM-compensated step length, joint commands "
-            "through the safety envelope, its heartbeat. It brings the nodes up and stands; it walks only when the "
-            "operator asks for it (--walk, or --cycles N), so a controller restarted after a crash never walks on "
-            "its own (docs/FAULTS.md F22). Lock-step: each tick waits for the nodes' frames of its SYNC; "
-            "real time (default): absolute 20 ms deadlines with the real-time set-up where the OS permits it. A "
-            "one-line status per second on stderr; SIGINT or SIGTERM asks for a stop (the swing in progress "
-            "ends first), then the run ends with cyclictest-style tick statistics."
-        ),
+        description=__doc__,
     )
     add_config_options(p)
     p.add_argument("--lockstep", action="store_true", help="a tick advances when the nodes have reported (default: real time)")

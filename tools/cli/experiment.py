@@ -1,4 +1,10 @@
-"""``aider-exo experiment``: the paper's experiments through the whole pipeline (docs/EXPERIMENTS.md)."""
+"""aider-exo experiment: the paper's experiments through the whole pipeline (docs/EXPERIMENTS.md).
+
+The paper's experiments (section IV) through the real pipeline: the controller, CAN frames on a
+virtual bus, the node boards and the simulation, in lock-step, one walk per roll-out, walks in
+parallel worker processes. Deterministic for the seeds; every finished walk is kept under OUT/cache,
+so an interrupted run resumes where it stopped.
+"""
 
 from __future__ import annotations
 
@@ -17,12 +23,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "experiment",
         help="reproduce the paper's experiments (learning curves, adaptive against fixed steps)",
-        description=(
-            "The paper's experiments (section IV) through the real pipeline: the controller, CAN frames on a "
-            "virtual bus, the node boards and the simulation, in lock-step, one walk per roll-out, walks in "
-            "parallel worker processes. Deterministic for the seeds; every finished walk is kept under "
-            "OUT/cache, so an interrupted run resumes where it stopped."
-        ),
+        description=__doc__,
     )
     xsub = p.add_subparsers(dest="experiment", metavar="EXPERIMENT", required=True)
 

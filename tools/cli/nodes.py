@@ -1,4 +1,11 @@
-"""``aider-exo nodes``: the simulated HHEA and its four node boards, speaking only CAN."""
+"""aider-exo nodes: the simulated HHEA and its four node boards, speaking only CAN.
+
+Hosts the PyBullet HHEA (with the patient) and four CANopen-style node boards (left/right hip and
+knee). They boot, wait for the controller's NMT start, apply its joint commands per SYNC, report
+status and sensors per SYNC with alive counters and CRCs, and quick-stop on a lost controller.
+Lock-step: each SYNC advances the physics by one 20 ms tick. A one-line status per second goes to
+stderr; SIGINT or SIGTERM ends the run cleanly.
+"""
 
 from __future__ import annotations
 
@@ -13,13 +20,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "nodes",
         help="emulate the four node boards driving the simulated HHEA over CAN",
-        description=(
-            "Hosts the PyBullet HHEA (with the patient) and four CANopen-style node boards (left/right hip "
-            "and knee). They boot, wait for the controller's NMT start, apply its joint commands per SYNC, "
-            "report status and sensors per SYNC with alive counters and CRCs, and quick-stop on a lost "
-            "controller. Lock-step: each SYNC advances the physics by one 20 ms tick. A one-line status per "
-            "second goes to stderr; SIGINT or SIGTERM ends the run cleanly."
-        ),
+        description=__doc__,
     )
     add_config_options(p)
     p.add_argument("--lockstep", action="store_true", help="advance the physics one tick per SYNC (default: real time)")

@@ -1,4 +1,11 @@
-"""``aider-exo soak``: long lock-step walking under seeded random faults, invariants on every tick."""
+"""aider-exo soak: long lock-step walking under seeded random faults, invariants on every tick.
+
+The controller, the node boards and the simulated HHEA (sagittal mode) in lock-step on the
+in-process bus, in episodes of a fresh world, with seeded random bus and node faults; the operator
+resets after each HOLD or FAULT and walks on. Checks docs/FAULTS.md's invariants I1-I7 on every tick
+and the process's resident memory and object count between the first episode and the end. Exit
+status 1 when an invariant broke or memory grew beyond its limit (docs/SAFETY.md).
+"""
 
 from __future__ import annotations
 
@@ -12,13 +19,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "soak",
         help="walk for a long time under random faults, checking the safety invariants and memory",
-        description=(
-            "The controller, the node boards and the simulated HHEA (sagittal mode) in lock-step on the in-process "
-            "bus, in episodes of a fresh world, with seeded random bus and node faults; the operator resets after "
-            "each HOLD or FAULT and walks on. Checks docs/FAULTS.md's invariants I1-I7 on every tick and the process's "
-            "resident memory and object count between the first episode and the end. Exit status 1 when an "
-            "invariant broke or memory grew beyond its limit (docs/SAFETY.md)."
-        ),
+        description=__doc__,
     )
     add_config_options(p)
     p.add_argument("--minutes", type=positive_float, default=30.0, help="simulated minutes of walking (default 30)")

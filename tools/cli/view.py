@@ -1,4 +1,11 @@
-"""``aider-exo view``: the live view of a walk in the browser, from the bus or a recorded trace."""
+"""aider-exo view: the live view of a walk in the browser, from the bus or a recorded trace.
+
+A passive listener on the bus (--bus socketcan --channel can0|vcan0, or udp_multicast) or on a
+recorded trace (--trace FILE, any format the trace tool reads) that decodes every frame with the DBC
+and the receiver's checks, runs the controller's own estimator on them, and serves one page over
+HTTP and a WebSocket. It never sends a frame. For a walk in this process: aider-exo walk --view. See
+docs/VIEW.md.
+"""
 
 from __future__ import annotations
 
@@ -15,12 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "view",
         help="serve a live view of the walk (gait phase, forces, CoM in the support polygon, node health) from the bus alone",
-        description=(
-            "A passive listener on the bus (--bus socketcan --channel can0|vcan0, or udp_multicast) or on a recorded "
-            "trace (--trace FILE, any format the trace tool reads) that decodes every frame with the DBC and the "
-            "receiver's checks, runs the controller's own estimator on them, and serves one page over HTTP and a "
-            "WebSocket. It never sends a frame. For a walk in this process: aider-exo walk --view. See docs/VIEW.md."
-        ),
+        description=__doc__,
     )
     add_config_options(p)
     p.add_argument("--trace", nargs="+", metavar="FILE", help="play recorded traces instead of listening to the bus")

@@ -1,4 +1,13 @@
-"""``aider-exo walk``: the main controller, the node boards and the simulated HHEA walking together."""
+"""aider-exo walk: the main controller, the node boards and the simulated HHEA walking together.
+
+The main controller (gait FSM, DMP swing, CoM compensation, optionally learning) walks the simulated
+HHEA through the four emulated node boards, every value a CAN frame, in lock-step (deterministic for
+a seed). By default everything runs in this process on the in-process virtual bus; with --bus
+socketcan (or udp_multicast) the node boards run as a second process (aider-exo nodes) on that
+channel. A one-line status while it walks (on stderr), a summary at the end: steps and cycles
+walked, falls, mean stick force, and the error of the estimated X_CoM/X_SP against the simulation's
+ground truth.
+"""
 
 from __future__ import annotations
 
@@ -20,15 +29,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "walk",
         help="walk the simulated HHEA under the main controller, over CAN in lock-step",
-        description=(
-            "The main controller (gait FSM, DMP swing, CoM compensation, optionally learning) walks the "
-            "simulated HHEA through the four emulated node boards, every value a CAN frame, in lock-step "
-            "(deterministic for a seed). By default everything runs in this process on the in-process virtual "
-            "bus; with --bus socketcan (or udp_multicast) the node boards run as a second process (aider-exo "
-            "nodes) on that channel. A one-line status while it walks (on stderr), a summary at the end: steps and cycles "
-            "walked, falls, mean stick force, and the error of the estimated X_CoM/X_SP against the "
-            "simulation's ground truth."
-        ),
+        description=__doc__,
     )
     add_config_options(p)
     p.add_argument("--steps", type=positive_int, default=10, metavar="N",
