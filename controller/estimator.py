@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controller.support import convex_hull, window_on_line
+from protocol.geometry import fore_aft_ratio
 
 SIDES = ("l", "r")
 Vec3 = tuple[float, float, float] | list[float]
@@ -170,7 +171,7 @@ class StateEstimator:
 
         support = self._pivot_polygon(ankles, tips, feet_loaded, sticks_loaded)
         return Estimate(np.array(com), np.array(ankles), np.array(tips), feet_loaded, sticks_loaded, floor_z,
-                        np.array(support).reshape(-1, 2), self.fore_aft_ratio(com[0], [p[0] for p in support]),
+                        np.array(support).reshape(-1, 2), fore_aft_ratio(com[0], [p[0] for p in support], self.body.min_support_m),
                         (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]), np.array(axes))
 
     def stance_ratio(self, est: Estimate, stance: int) -> float:
@@ -191,14 +192,6 @@ class StateEstimator:
         points = corners + [(float(t[0]), float(t[1])) for t in tips]
         rear, front = min(x for x, _ in points), window_on_line(convex_hull(points), float(com[1]), 0.0)[1]
         return (float(com[0]) - rear) / (front - rear) if front - rear >= b.min_support_m else math.nan
-
-    def fore_aft_ratio(self, com_x: float, xs: list[float]) -> float:
-        """The CoM's place between the rear-most and the front-most of ``xs``; nan for a support
-        shorter than ``min_support_m`` fore-aft, which says nothing fore-aft."""
-        if not xs:
-            return math.nan
-        rear, front = min(xs), max(xs)
-        return (com_x - rear) / (front - rear) if front - rear >= self.body.min_support_m else math.nan
 
     def _elbow_angle(self, i: int, a: float, b: float, c: float) -> tuple[float, bool]:
         lo, hi = self.body.elbow_min_rad, self.body.elbow_max_rad

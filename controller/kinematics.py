@@ -1,4 +1,6 @@
-"""Sagittal leg kinematics of the exoskeleton: ankle position relative to the hip <-> hip and knee.
+"""Sagittal leg kinematics of the exoskeleton: ankle position relative to the hip <-> hip and knee,
+within the leg's joint limits (the geometry itself: :mod:`protocol.geometry`, which the simulation
+shares).
 
 Conventions (those of the node boards' encoders and of the protocol): hip flexion positive (thigh
 forward), knee flexion positive (shank backward relative to the thigh), 0 = straight leg hanging
@@ -12,6 +14,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from protocol.geometry import leg_forward, leg_inverse
 
 
 class KinematicsError(ValueError):
@@ -42,11 +46,7 @@ class Leg:
 
 def forward(leg: Leg, hip_rad: float, knee_rad: float) -> tuple[float, float]:
     """Ankle (x, z) relative to the hip for the given joint angles (no limit check)."""
-    shank = hip_rad - knee_rad
-    return (
-        leg.thigh_m * math.sin(hip_rad) + leg.shank_m * math.sin(shank),
-        -leg.thigh_m * math.cos(hip_rad) - leg.shank_m * math.cos(shank),
-    )
+    return leg_forward(leg.thigh_m, leg.shank_m, hip_rad, knee_rad)
 
 
 def inverse(leg: Leg, x_m: float, z_m: float) -> tuple[float, float]:
@@ -55,17 +55,10 @@ def inverse(leg: Leg, x_m: float, z_m: float) -> tuple[float, float]:
     Raises :class:`KinematicsError` when the point is out of reach, non-finite, or needs joint
     angles beyond the limits; the message says which.
     """
-    if not (math.isfinite(x_m) and math.isfinite(z_m)):
-        raise KinematicsError(f"ankle target ({x_m}, {z_m}) is not finite")
-    d2 = x_m * x_m + z_m * z_m
-    cos_knee = (d2 - leg.thigh_m**2 - leg.shank_m**2) / (2.0 * leg.thigh_m * leg.shank_m)
-    if cos_knee > 1.0 + 1e-12 or cos_knee < -1.0 - 1e-12:
-        raise KinematicsError(
-            f"ankle target ({x_m:.3f}, {z_m:.3f}) m is {math.sqrt(d2):.3f} m from the hip: "
-            f"outside the leg's reach [{abs(leg.thigh_m - leg.shank_m):.3f}, {leg.reach_m:.3f}] m"
-        )
-    knee = math.acos(min(1.0, max(-1.0, cos_knee)))
-    hip = math.atan2(x_m, -z_m) + math.atan2(leg.shank_m * math.sin(knee), leg.thigh_m + leg.shank_m * math.cos(knee))
+    try:
+        hip, knee = leg_inverse(leg.thigh_m, leg.shank_m, x_m, z_m)
+    except ValueError as e:
+        raise KinematicsError(str(e)) from None
     if not leg.hip_min_rad <= hip <= leg.hip_max_rad:
         raise KinematicsError(f"ankle target ({x_m:.3f}, {z_m:.3f}) m needs hip {hip:.3f} rad outside [{leg.hip_min_rad}, {leg.hip_max_rad}]")
     if not leg.knee_min_rad <= knee <= leg.knee_max_rad:

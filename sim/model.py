@@ -239,31 +239,7 @@ def urdf_file(cfg: ModelConfig, directory: Path) -> Path:
     return path
 
 
-# -- kinematics of the limbs (sagittal leg, 3-D arm), used for the initial pose and the drivers --
-
-
-def leg_ik(ankle_rel_hip_xz: np.ndarray, thigh_m: float, shank_m: float) -> tuple[float, float]:
-    """Hip and knee flexion placing the ankle at (x, z) from the hip, in the thigh's pitch frame.
-
-    Raises ValueError when the point is out of reach.
-    """
-    x, z = float(ankle_rel_hip_xz[0]), float(ankle_rel_hip_xz[1])
-    d2 = x * x + z * z
-    c = (d2 - thigh_m**2 - shank_m**2) / (2 * thigh_m * shank_m)
-    if not -1.0 <= c <= 1.0:
-        raise ValueError(f"ankle target ({x:.3f}, {z:.3f}) m is out of the leg's reach")
-    knee = math.acos(c)  # knee flexion, >= 0
-    # ankle = l1 (sin h, -cos h) + l2 (sin(h - k), -cos(h - k))
-    alpha = math.atan2(x, -z)
-    beta = math.atan2(shank_m * math.sin(knee), thigh_m + shank_m * math.cos(knee))
-    return alpha + beta, knee
-
-
-def leg_fk(hip: float, knee: float, thigh_m: float, shank_m: float) -> np.ndarray:
-    return np.array([
-        thigh_m * math.sin(hip) + shank_m * math.sin(hip - knee),
-        -thigh_m * math.cos(hip) - shank_m * math.cos(hip - knee),
-    ])
+# -- kinematics of the arm (the leg's: protocol.geometry), used for the initial pose and the drivers --
 
 
 def arm_ik(tip_rel_shoulder: np.ndarray, upper_m: float, lower_m: float, side: str) -> tuple[float, float, float]:

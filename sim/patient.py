@@ -371,7 +371,7 @@ class Patient:
 
     def balance(self) -> BalanceResult:
         """Distribute the wrench over the stance soles and the planted sticks and command the arms."""
-        w, kin, g = self.world, self.kin, self.g
+        kin, g = self.kin, self.g
         contacts = list(self.foot_contacts())
         for t in SIDES:
             if self.planted[t] or t in self.unloading:

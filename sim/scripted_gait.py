@@ -34,10 +34,11 @@ import math
 import numpy as np
 
 from config.sim_schema import GaitConfig, SimConfig
+from protocol.geometry import leg_inverse
 from sim.balance import distribute
 from sim.kinematics import Kinematics
 from sim.linalg import clamp, cross3, minimum_jerk
-from sim.model import EXO_JOINTS, leg_ik
+from sim.model import EXO_JOINTS
 from sim.patient import OTHER, SIDES, WRENCH_WEIGHTS, Patient, Phase
 from sim.sensors import Reading
 from sim.world import GRAVITY, World
@@ -147,7 +148,7 @@ class ScriptedGait:
             if length > reach:
                 ankle = ankle * reach / length
             try:
-                thigh, knee = leg_ik(ankle, b.thigh_m, b.shank_m)
+                thigh, knee = leg_inverse(b.thigh_m, b.shank_m, float(ankle[0]), float(ankle[1]))
             except ValueError:
                 thigh, knee = w.q[hip_i] - pitch, w.q[knee_i]
             for name, joint, target in ((f"hip_{side}", hip_i, thigh + trunk_pitch), (f"knee_{side}", knee_i, knee)):

@@ -27,8 +27,6 @@ __all__ = [
     "polygon_centroid",
     "stability_margin",
     "pivot_margin",
-    "fore_aft_ratio",
-    "fore_aft_ratio_at_lateral",
     "extent_on_line",
     "radial_ratio",
     "com_of_links",
@@ -257,68 +255,6 @@ def _margin(verts: list, px: float, py: float, degenerate: bool) -> float:
         distance = min(distance, math.hypot(ax + t * ex - px, ay + t * ey - py))
         inside = inside and ex * (py - ay) - ey * (px - ax) >= 0.0
     return -distance if degenerate or not inside else distance
-
-
-def fore_aft_ratio(polygon, point, heading=(1.0, 0.0)) -> float:
-    """Fore-aft position of a point within the polygon's overall extent along the heading.
-
-    This is the paper's X_CoM / X_SP: ``(p - rear) / (front - rear)`` with all three
-    projected on the unit heading, where rear and front are the polygon's rear-most and
-    front-most extent.
-
-    Parameters
-    ----------
-    polygon : array_like, shape (m, 2)
-        Polygon vertices (any order).
-    point : array_like, shape (2,)
-        Horizontal position, typically the centre of mass.
-    heading : array_like, shape (2,), default (1, 0)
-        Walking direction; normalised here, must be non-zero.
-
-    Returns
-    -------
-    float
-        0 at the rear extent, 1 at the front extent, < 0 behind, > 1 ahead. ``nan`` when
-        the extent is zero (empty polygon, or all vertices on one line across the
-        heading): callers must check with ``math.isnan``.
-    """
-    verts, p, h = _points(polygon, "polygon"), _vec(point, 2, "point"), _unit(heading)
-    if len(verts) == 0:
-        return math.nan
-    s = verts @ h
-    rear, front = float(s.min()), float(s.max())
-    if front - rear <= _REL_EPS * max(1.0, abs(rear), abs(front)):
-        return math.nan
-    return (float(p @ h) - rear) / (front - rear)
-
-
-def fore_aft_ratio_at_lateral(polygon, point, heading=(1.0, 0.0)) -> float:
-    """Fore-aft ratio using the polygon's extent along the line through the point.
-
-    Like :func:`fore_aft_ratio`, but rear and front are where the line through ``point``
-    along ``heading`` enters and leaves the (convex hull of the) polygon. For a
-    triangle, this is the honest fore-aft position at the point's lateral coordinate.
-
-    Parameters
-    ----------
-    polygon : array_like, shape (m, 2)
-        Polygon vertices (any order).
-    point : array_like, shape (2,)
-        Horizontal position, typically the centre of mass.
-    heading : array_like, shape (2,), default (1, 0)
-        Walking direction; normalised here, must be non-zero.
-
-    Returns
-    -------
-    float
-        0 at the rear crossing, 1 at the front crossing, < 0 or > 1 outside. ``nan`` when
-        the line misses the polygon or only touches it in one point.
-    """
-    p, h = _vec(point, 2, "point"), _unit(heading)
-    rear, front = extent_on_line(polygon, p, h)
-    if not front - rear > _REL_EPS * max(1.0, abs(rear), abs(front)):
-        return math.nan
-    return (float(p @ h) - rear) / (front - rear)
 
 
 def extent_on_line(polygon, point, heading=(1.0, 0.0)) -> tuple[float, float]:

@@ -24,7 +24,8 @@ from sim.model import build_body
 from sim.patient import OTHER, SIDES, Patient, Phase, StepPlan
 from sim.scripted_gait import ScriptedGait
 from sim.sensors import Reading, Sensors
-from sim.truth import FallCriteria, fore_aft_ratio, pivot_polygon
+from protocol.geometry import fore_aft_ratio
+from sim.truth import FallCriteria, pivot_polygon
 from sim.world import StancePose, World
 
 __all__ = ["OTHER", "SIDES", "Phase", "StepRecord", "WalkResult", "Walker", "gait_settings", "initial_pose", "walk"]
@@ -274,11 +275,8 @@ class Walker:
         tip_xy = np.array([p.tip_point(s)[:2] for s in tips]).reshape(-1, 2)
         poly = pivot_polygon(ankles, tip_xy, ankle_halfwidth=self.cfg.model.foot.half_width_m)
         heading = w.link_frame("trunk")[1][:2, 0]
-        heading = heading / np.linalg.norm(heading)
-        extent = poly @ heading if len(poly) else np.zeros(1)
-        if float(extent.max() - extent.min()) < min_support_m:
-            return math.nan
-        return fore_aft_ratio(poly, self.kin.com[:2], heading=heading)
+        heading = heading / np.linalg.norm(heading)  # the support and the CoM along it
+        return fore_aft_ratio(float(self.kin.com[:2] @ heading), (poly @ heading).tolist(), min_support_m)
 
     def run(self, max_steps: int, max_time_s: float = 120.0, on_tick=None) -> WalkResult:
         """Walk until ``max_steps`` steps have landed, a fall, or ``max_time_s``.

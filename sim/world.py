@@ -42,6 +42,7 @@ import pybullet_data  # noqa: E402
 from pybullet_utils.bullet_client import BulletClient  # noqa: E402
 
 from config.sim_schema import SimConfig
+from protocol.geometry import leg_inverse
 from sim.actuation import LAW_ROWS, Gains, JointImpedance, law_torques, spring_law
 from sim.linalg import rpy_from_matrix
 from sim.model import (
@@ -52,7 +53,6 @@ from sim.model import (
     Body,
     arm_ik,
     build_body,
-    leg_ik,
     urdf_file,
 )
 
@@ -251,7 +251,7 @@ class World:
         reach = math.sqrt(b.thigh_m**2 + b.shank_m**2 + 2 * b.thigh_m * b.shank_m * math.cos(pose.knee_rad))
         hip_z = min(b.ankle_height_m + math.sqrt(max(reach**2 - (fx - hip_x) ** 2, 0.0)) for fx in pose.foot_x_m)
         for side, foot_x in zip("lr", pose.foot_x_m):
-            h_world, knee = leg_ik(np.array([foot_x - hip_x, b.ankle_height_m - hip_z]), b.thigh_m, b.shank_m)
+            h_world, knee = leg_inverse(b.thigh_m, b.shank_m, foot_x - hip_x, b.ankle_height_m - hip_z)
             q[f"hip_{side}"] = h_world + theta
             q[f"knee_{side}"] = knee
             q[f"ankle_{side}"] = theta - q[f"hip_{side}"] + knee  # sole flat

@@ -11,7 +11,8 @@ import pytest
 
 from config import default_config_path, load_config
 from controller.estimator import Measurements, StateEstimator, rot_rpy
-from sim.truth import extent_on_line, fore_aft_ratio, pivot_polygon
+from protocol.geometry import fore_aft_ratio
+from sim.truth import extent_on_line, pivot_polygon
 from sim.walk import OTHER, Walker, gait_settings, initial_pose
 from sim.world import World
 
@@ -49,7 +50,7 @@ def truth(walker: Walker, world: World, threshold_n: float = 20.0):
     feet = [world.contact_normal_force(f"foot_{s}") > threshold_n for s in "lr"]
     sticks = [world.contact_normal_force(f"forearm_{s}") > threshold_n for s in "lr"]
     poly = pivot_polygon(ankles[feet][:, :2], tips[sticks][:, :2], ankle_halfwidth=CFG.sim.model.foot.half_width_m)
-    return com, ankles, tips, feet, sticks, fore_aft_ratio(poly, com[:2])
+    return com, ankles, tips, feet, sticks, fore_aft_ratio(float(com[0]), poly[:, 0].tolist(), 0.0)
 
 
 @pytest.mark.parametrize("mode", ["sagittal", "full3d"])

@@ -9,13 +9,12 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
+from protocol.geometry import fore_aft_ratio
 from sim.truth import (
     FallCriteria,
     com_of_links,
     convex_hull_2d,
     detect_fall,
-    fore_aft_ratio,
-    fore_aft_ratio_at_lateral,
     pivot_margin,
     pivot_polygon,
     polygon_area,
@@ -159,33 +158,7 @@ def test_margin_grows_with_support(points, extra, p):
     assert stability_margin(big, p) >= stability_margin(small, p) - 1e-12
 
 
-# --- fore-aft and radial ratios ------------------------------------------------------------
-
-
-def test_fore_aft_ratio_on_unit_square():
-    assert fore_aft_ratio(UNIT_SQUARE, (0.0, 0.5)) == 0.0
-    assert fore_aft_ratio(UNIT_SQUARE, (1.0, 0.2)) == 1.0
-    assert fore_aft_ratio(UNIT_SQUARE, (0.5, 0.9)) == 0.5
-    assert fore_aft_ratio(UNIT_SQUARE, (-0.5, 0.5)) == -0.5
-    assert fore_aft_ratio(UNIT_SQUARE, (0.25, 0.5), heading=(0.0, 2.0)) == pytest.approx(0.5)
-    assert fore_aft_ratio(UNIT_SQUARE, (0.25, 0.5), heading=(-1.0, 0.0)) == pytest.approx(0.75)
-
-
-def test_fore_aft_ratio_degenerate_extent_is_nan_and_zero_heading_rejected():
-    assert math.isnan(fore_aft_ratio([[0.0, -1.0], [0.0, 1.0]], (0.0, 0.0)))
-    assert math.isnan(fore_aft_ratio([], (0.0, 0.0)))
-    with pytest.raises(ValueError, match="heading"):
-        fore_aft_ratio(UNIT_SQUARE, (0.5, 0.5), heading=(0.0, 0.0))
-
-
-def test_fore_aft_ratio_at_lateral_uses_the_chord_through_the_point():
-    triangle = [[0.0, -1.0], [0.0, 1.0], [2.0, 0.0]]  # apex ahead
-    assert fore_aft_ratio(triangle, (0.5, 0.5)) == pytest.approx(0.25)
-    assert fore_aft_ratio_at_lateral(triangle, (0.5, 0.5)) == pytest.approx(0.5)  # chord x in [0, 1]
-    assert fore_aft_ratio_at_lateral(triangle, (1.5, 0.5)) == pytest.approx(1.5)  # ahead of the chord
-    assert math.isnan(fore_aft_ratio_at_lateral(triangle, (0.5, 1.5)))  # line misses
-    assert math.isnan(fore_aft_ratio_at_lateral(triangle, (0.5, 1.0)))  # line only touches a vertex
-    assert fore_aft_ratio_at_lateral(UNIT_SQUARE, (0.3, 0.0)) == pytest.approx(0.3)  # along an edge
+# --- the fore-aft ratio (protocol.geometry) on the truth's polygons, and the radial ratio ------------------------------------------------------------
 
 
 @given(point_sets, st.lists(st.floats(0.01, 1.0), min_size=12, max_size=12))
@@ -196,8 +169,7 @@ def test_ratios_lie_in_unit_interval_for_inside_points(points, weights):
     w = np.array(weights[: len(poly)])
     p = tuple(w @ np.asarray(poly) / w.sum()) if len(poly) else (0.0, 0.0)
     assume(stability_margin(poly, p) > 1e-9)  # a polygon of no area has no inside
-    assert 0.0 <= fore_aft_ratio(poly, p) <= 1.0
-    assert 0.0 <= fore_aft_ratio_at_lateral(poly, p) <= 1.0
+    assert 0.0 <= fore_aft_ratio(p[0], [v[0] for v in poly], 0.0) <= 1.0
     assert radial_ratio(poly, p) < 1.0
 
 
@@ -234,8 +206,8 @@ def test_quadruple_support_com_near_heels_has_fore_aft_ratio_about_0_18():
     soles = [[-0.18, 0.15], [0.09, 0.15], [-0.18, -0.15], [0.09, -0.15]]
     polygon = support_polygon(np.vstack([soles, TIPS]))
     com = (-0.01, 0.0)
-    assert fore_aft_ratio(polygon, com) == pytest.approx(0.17 / 0.926)
-    assert fore_aft_ratio(polygon, com) == pytest.approx(0.18, abs=0.01)
+    assert fore_aft_ratio(com[0], polygon[:, 0].tolist(), 0.0) == pytest.approx(0.17 / 0.926)
+    assert fore_aft_ratio(com[0], polygon[:, 0].tolist(), 0.0) == pytest.approx(0.18, abs=0.01)
     assert stability_margin(polygon, com) > 0.0
 
 
