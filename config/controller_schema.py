@@ -2,35 +2,25 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Literal
 
+from .hardware_schema import HardwareConfig
 from .loader import fail, field_spec
 
 
 @dataclass(frozen=True, kw_only=True)
 class LegConfig:
-    """The exoskeleton leg as the controller knows it (from the exoskeleton's drawings, not the simulation)."""
+    """The exoskeleton leg as set to the patient (from the fitting; its joints' ranges: ``hardware.joints``)."""
 
     thigh_m: float = field_spec(doc="Hip to knee joint distance.", unit="m", min=0.2, max=0.7)
     shank_m: float = field_spec(doc="Knee to ankle joint distance.", unit="m", min=0.2, max=0.7)
     ankle_height_m: float = field_spec(doc="Ankle joint above the sole.", unit="m", min=0.02, max=0.2)
-    hip_min_rad: float = field_spec(doc="Hip extension limit.", unit="rad", min=-math.pi, max=math.pi)
-    hip_max_rad: float = field_spec(doc="Hip flexion limit.", unit="rad", min=-math.pi, max=math.pi)
-    knee_min_rad: float = field_spec(doc="Knee extension limit (0 = straight).", unit="rad", min=-0.5, max=math.pi)
-    knee_max_rad: float = field_spec(doc="Knee flexion limit.", unit="rad", min=0.0, max=math.pi)
 
     @property
     def length_m(self) -> float:
         """The leg length, hip joint to floor standing straight: what the step lengths are fractions of."""
         return self.thigh_m + self.shank_m + self.ankle_height_m
-
-    def validate(self) -> None:
-        if self.hip_min_rad >= self.hip_max_rad:
-            fail("hip_min_rad", "must be below hip_max_rad")
-        if self.knee_min_rad >= self.knee_max_rad:
-            fail("knee_min_rad", "must be below knee_max_rad")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -117,14 +107,8 @@ class BodyConfig:
     )
     upper_arm_m: float = field_spec(doc="Shoulder to elbow.", unit="m", min=0.15, max=0.5)
     elbow_to_tip_m: float = field_spec(doc="Elbow to the centre of the stick's tip.", unit="m", min=0.5, max=2.0)
-    tip_radius_m: float = field_spec(doc="Radius of the stick's rubber tip.", unit="m", min=0.0, max=0.05)
     elbow_min_rad: float = field_spec(doc="Elbow flexion range, lower end.", unit="rad", min=-0.5, max=3.0)
     elbow_max_rad: float = field_spec(doc="Elbow flexion range, upper end.", unit="rad", min=0.0, max=3.0)
-    foot_heel_m: float = field_spec(doc="Heel behind the ankle joint.", unit="m", min=0.0, max=0.2)
-    foot_toe_m: float = field_spec(doc="Toe ahead of the ankle joint.", unit="m", min=0.05, max=0.35)
-    foot_half_width_m: float = field_spec(doc="Half the sole's width.", unit="m", min=0.02, max=0.1)
-    ankle_stiffness_nm_rad: float = field_spec(doc="The exoskeleton's ankle spring.", unit="N.m/rad", min=0.0, max=2000.0)
-    ankle_rest_rad: float = field_spec(doc="Its rest angle (dorsiflexion positive).", unit="rad", min=-0.5, max=0.6)
     trunk_kg: float = field_spec(doc="Trunk, head and arms' share carried by the trunk, with the backpack.", unit="kg", min=5.0, max=200.0)
     trunk_com_xz_m: tuple[float, float] = field_spec(doc="Trunk CoM from the hip midpoint (x, z).", unit="m", min=-0.5, max=1.0)
     thigh_kg: float = field_spec(doc="One thigh with its exoskeleton segment.", unit="kg", min=1.0, max=40.0)
@@ -281,6 +265,7 @@ class ControllerConfig:
     balance: BalanceConfig = field_spec(doc="The stance legs' torque feed-forward.")
     compensation: CompensationConfig = field_spec(doc="The step-length compensation's theta without a patient file.")
     patients_dir: str = field_spec(doc="Directory of the learned parameters per patient, <patients_dir>/<NAME>.json (relative: to the folder of the configuration file).")
+    hardware: HardwareConfig | None = field_spec(doc="The exoskeleton and the sticks: the top-level hardware section.", derived=True)
 
     def validate(self) -> None:
         if self.safety.hold_torque_nm > self.envelope.max_torque_nm:

@@ -83,6 +83,7 @@ T = TypeVar("T")
 #: Key under which :func:`field_spec` stores its :class:`FieldSpec` in
 #: ``dataclasses.Field.metadata``.
 SPEC_METADATA_KEY = "aider_exo.config"
+DERIVED_KEY = "aider_exo.derived"  # a field the root sets from another section (field_spec(derived=True))
 
 _OVERRIDES_SOURCE = "<overrides>"
 _MAX_SHOWN_CHARS = 40
@@ -213,6 +214,7 @@ def field_spec(
     default: Any = dataclasses.MISSING,
     default_factory: Any = dataclasses.MISSING,
     allow_nonfinite: bool = False,
+    derived: bool = False,
 ) -> Any:
     """Declare a configuration field of a frozen config dataclass.
 
@@ -233,6 +235,10 @@ def field_spec(
         Like ``dataclasses.field(default_factory=...)``, e.g. ``dict``.
     allow_nonfinite : bool
         Accept ``.nan`` and ``.inf`` for floats (rejected by default).
+    derived : bool
+        Not a key of this section: the root sets it from another section (the top-level
+        ``hardware`` section in ``controller`` and ``sim``). Never read from nor written to a file,
+        not compared; ``None`` until set.
 
     Returns
     -------
@@ -251,6 +257,8 @@ def field_spec(
         choices=tuple(choices) if choices is not None else None,
         allow_nonfinite=allow_nonfinite,
     )
+    if derived:
+        return dataclasses.field(default=None, compare=False, repr=False, metadata={SPEC_METADATA_KEY: spec, DERIVED_KEY: True})
     return dataclasses.field(
         default=default,
         default_factory=default_factory,
@@ -545,8 +553,12 @@ def _config_fields(cls: type) -> list[tuple[dataclasses.Field[Any], Any, FieldSp
         raise TypeError(f"config dataclass {cls.__qualname__} must be frozen")
     hints = typing.get_type_hints(cls)
     return [
-        (f, hints[f.name], _spec_of(f, cls)) for f in dataclasses.fields(cls) if f.init
+        (f, hints[f.name], _spec_of(f, cls)) for f in dataclasses.fields(cls) if f.init and not _is_derived(f)
     ]
+
+
+def _is_derived(field: dataclasses.Field[Any]) -> bool:
+    return bool(field.metadata.get(DERIVED_KEY))
 
 
 def _is_required(field: dataclasses.Field[Any]) -> bool:
@@ -816,7 +828,7 @@ def check_schema(cls: type) -> None:
 def _to_plain(value: Any) -> Any:
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return {
-            f.name: _to_plain(getattr(value, f.name)) for f in dataclasses.fields(value) if f.init
+            f.name: _to_plain(getattr(value, f.name)) for f in dataclasses.fields(value) if f.init and not _is_derived(f)
         }
     if isinstance(value, (list, tuple)):
         return [_to_plain(v) for v in value]

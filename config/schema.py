@@ -16,11 +16,13 @@ from __future__ import annotations
 
 import ipaddress
 import re
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
 from .loader import fail, field_spec
 from .controller_schema import ControllerConfig
+from .hardware_schema import HardwareConfig
 from .nodes_schema import NodesConfig
 from .sim_schema import SimConfig
 
@@ -171,6 +173,10 @@ class Config:
     )
     bus: BusConfig = field_spec(doc="CAN bus settings.")
     protocol: ProtocolConfig = field_spec(doc="End-to-end protection receiver settings.")
+    hardware: HardwareConfig | None = field_spec(
+        doc="The exoskeleton and its sticks, one physical fact each: what the controller and the simulation both read.",
+        default=None,
+    )
     controller: ControllerConfig | None = field_spec(
         doc="The main controller's algorithms (legs, swing DMP, step bounds, learning).", default=None
     )
@@ -180,3 +186,23 @@ class Config:
     nodes: NodesConfig | None = field_spec(
         doc="The emulated node boards (watchdogs, fault injection); absent on the robot.", default=None
     )
+
+    def __post_init__(self) -> None:
+        # The hardware section is one definition; the controller and the simulation each read it
+        # as their own ``hardware`` (a derived field: never in their sections of a file).
+        for name in ("controller", "sim"):
+            section = getattr(self, name)
+            if section is not None and section.hardware is not self.hardware:
+                object.__setattr__(self, name, dataclasses.replace(section, hardware=self.hardware))
+
+    def validate(self) -> None:
+        if self.hardware is None and (self.controller is not None or self.sim is not None):
+            fail("hardware", "missing required key (the controller and the simulation read the exoskeleton from it)")
+        if self.sim is not None:
+            p, stick_m = self.sim.model.patient, self.hardware.sticks.length_m
+            shoulder_z = p.shoulder_height_fraction * p.height_m
+            reach = (p.upper_arm.length_fraction + p.forearm.length_fraction) * p.height_m
+            reach += p.hand.com_fraction * p.hand.length_fraction * p.height_m + stick_m
+            if reach < shoulder_z:  # even standing straight the straight arm puts the tip on the floor
+                fail("hardware.sticks.length_m",
+                     f"the sticks cannot reach the ground: arm plus stick reach {reach:.2f} m, shoulders at {shoulder_z:.2f} m")

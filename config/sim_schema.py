@@ -8,10 +8,10 @@ of gyration about the centre of mass as fractions of the segment length.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Literal
 
+from .hardware_schema import HardwareConfig, JointConfig
 from .loader import fail, field_spec
 
 
@@ -69,74 +69,23 @@ class ExoskeletonConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
-class StickConfig:
-    mass_kg: float = field_spec(doc="Mass of one stick (crutch).", unit="kg", min=0.1, max=3.0)
-    length_m: float = field_spec(doc="From the grip (hand) to the tip, along the forearm axis.", unit="m", min=0.3, max=1.5)
-    tip_radius_m: float = field_spec(doc="Radius of the rubber tip (contact sphere).", unit="m", min=0.005, max=0.05)
+class ArmJointsConfig:
+    """The patient's arm joints (the exoskeleton's: ``hardware.joints``)."""
 
-
-@dataclass(frozen=True, kw_only=True)
-class JointConfig:
-    lower_rad: float = field_spec(doc="Lower position limit.", unit="rad", min=-math.pi, max=math.pi)
-    upper_rad: float = field_spec(doc="Upper position limit.", unit="rad", min=-math.pi, max=math.pi)
-    torque_limit_nm: float = field_spec(doc="Largest torque the actuator (or the patient's muscle) applies.", unit="N.m", min=0.0, max=400.0)
-    velocity_limit_rad_s: float = field_spec(doc="Largest joint speed.", unit="rad/s", min=0.1, max=30.0)
-
-    def validate(self) -> None:
-        if self.lower_rad >= self.upper_rad:
-            fail("lower_rad", f"{self.lower_rad} must be below upper_rad {self.upper_rad}")
-
-
-@dataclass(frozen=True, kw_only=True)
-class AnkleConfig:
-    lower_rad: float = field_spec(doc="Plantarflexion limit (negative: toes down).", unit="rad", min=-1.2, max=0.0)
-    upper_rad: float = field_spec(doc="Dorsiflexion limit (toes up).", unit="rad", min=0.0, max=1.0)
-    stiffness_nm_rad: float = field_spec(doc="Passive spring stiffness.", unit="N.m/rad", min=0.0, max=5000.0)
-    rest_rad: float = field_spec(doc="Spring rest angle (positive: dorsiflexed, toes up).", unit="rad", min=-0.6, max=0.6)
-    friction_nm: float = field_spec(doc="Coulomb-like damping torque (a velocity motor with zero target).", unit="N.m", min=0.0, max=50.0)
-
-    def validate(self) -> None:
-        if not self.lower_rad <= self.rest_rad <= self.upper_rad:
-            fail("rest_rad", "must lie between lower_rad and upper_rad")
-
-
-@dataclass(frozen=True, kw_only=True)
-class JointsConfig:
-    hip: JointConfig = field_spec(doc="Exoskeleton hip flexion (+) / extension (-).")
-    knee: JointConfig = field_spec(doc="Exoskeleton knee flexion (+); 0 is straight.")
-    ankle: AnkleConfig = field_spec(doc="Passive spring ankle.")
     shoulder_flexion: JointConfig = field_spec(doc="Patient's shoulder flexion (+, arm forward).")
     shoulder_abduction: JointConfig = field_spec(doc="Patient's shoulder abduction (+, arm out to the side).")
     elbow: JointConfig = field_spec(doc="Patient's elbow flexion (+).")
 
 
 @dataclass(frozen=True, kw_only=True)
-class FootConfig:
-    heel_back_m: float = field_spec(doc="Heel contact behind the ankle.", unit="m", min=0.0, max=0.2)
-    toe_front_m: float = field_spec(doc="Toe contact ahead of the ankle.", unit="m", min=0.05, max=0.35)
-    half_width_m: float = field_spec(doc="Half the sole width (contacts at +-).", unit="m", min=0.01, max=0.1)
-    contact_radius_m: float = field_spec(doc="Radius of the four sole contact spheres.", unit="m", min=0.005, max=0.05)
-
-
-@dataclass(frozen=True, kw_only=True)
 class ModelConfig:
+    """The patient's body and arms, and the exoskeleton's masses (its joints, feet and the sticks:
+    the top-level ``hardware`` section, which the controller reads too)."""
+
     patient: PatientBodyConfig = field_spec(doc="Anthropometrics of the patient.")
     exoskeleton: ExoskeletonConfig = field_spec(doc="Masses of the exoskeleton parts.")
-    sticks: StickConfig = field_spec(doc="The two sticks, held rigidly in the hands.")
-    joints: JointsConfig = field_spec(doc="Joint limits and actuator strengths.")
-    foot: FootConfig = field_spec(doc="Sole contact geometry.")
+    joints: ArmJointsConfig = field_spec(doc="The patient's arm joints: limits and strengths.")
     friction: float = field_spec(doc="Friction coefficient of soles, stick tips and floor.", min=0.1, max=2.0)
-
-    def validate(self) -> None:
-        p = self.patient
-        shoulder_z = p.shoulder_height_fraction * p.height_m
-        reach = (p.upper_arm.length_fraction + p.forearm.length_fraction) * p.height_m
-        reach += p.hand.com_fraction * p.hand.length_fraction * p.height_m + self.sticks.length_m
-        if reach < shoulder_z:  # even standing straight the straight arm puts the tip on the floor
-            fail(
-                "sticks.length_m",
-                f"the sticks cannot reach the ground: arm plus stick reach {reach:.2f} m, shoulders at {shoulder_z:.2f} m",
-            )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -296,3 +245,4 @@ class SimConfig:
     patient: PatientControlConfig = field_spec(doc="The patient model.")
     gait: GaitConfig = field_spec(doc="The walk: the patient's behaviour and the scripted exoskeleton gait.")
     fall: FallConfig = field_spec(doc="Fall detection (ground truth).")
+    hardware: HardwareConfig | None = field_spec(doc="The exoskeleton and the sticks: the top-level hardware section.", derived=True)

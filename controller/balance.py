@@ -96,11 +96,10 @@ def nnls(a: np.ndarray, b: np.ndarray, max_iter: int = 60) -> np.ndarray:
 
 
 class LegLoads:
-    """Segment masses and the legs' geometry of the estimator's body model."""
+    """Segment masses and the legs' geometry of the estimator's body model, and the foot plate."""
 
-    def __init__(self, body, legs) -> None:
-        self.body, self.leg = body, kin.Leg(legs.thigh_m, legs.shank_m, legs.hip_min_rad, legs.hip_max_rad,
-                                            legs.knee_min_rad, legs.knee_max_rad)
+    def __init__(self, body, leg: kin.Leg, foot) -> None:
+        self.body, self.leg, self.foot = body, leg, foot
         b = body
         self.total_kg = b.trunk_kg + 2 * (b.thigh_kg + b.shank_kg + b.foot_kg + b.upper_arm_kg + b.forearm_kg)
 
@@ -197,7 +196,7 @@ def feed_forward(loads: LegLoads, gains: BalanceGains, est: Estimate, m: Measure
         wrench -= (0.0, up, r[1] * up, -r[0] * up)
     for i in feet:
         wrench[3] -= ankle_spring_pitch(q, pitch, i, gains)
-    half = b.foot_half_width_m
+    half = loads.foot.half_width_m
     contacts = np.array([est.ankles[i] + (0.0, s * half, 0.0) - com for i in feet for s in (1.0, -1.0)])
     forces = distribute(wrench, contacts, gains.friction, gains.min_foot_n)
     torques = grav.copy()

@@ -78,9 +78,9 @@ class CanSystem:
         self._command_of = {n: catalog.message("JOINT_COMMAND", n).name for n in self.node_names}
         self._scheduled = [catalog.by_name(n) for n in ("CONTROLLER_HEARTBEAT", "CONTROLLER_STEP", "CONTROLLER_LEARNING")]
         self.safety = safety = cfg.safety
-        legs, excess = cfg.legs, cfg.envelope.position_excess_rad  # a measured angle this far beyond a limit is a fault
-        ranges = ((legs.hip_min_rad, legs.hip_max_rad), (legs.knee_min_rad, legs.knee_max_rad)) * 2
-        self._measured_range = {n: (lo - excess, hi + excess) for n, (lo, hi) in zip(self.node_names, ranges)}
+        joints, excess = cfg.hardware.joints, cfg.envelope.position_excess_rad  # a measured angle this far beyond a limit is a fault
+        self._measured_range = {n: (j.lower_rad - excess, j.upper_rad + excess)
+                                for n, j in zip(self.node_names, (joints.hip, joints.knee) * 2)}
         self.lost_ticks = safety.lost_ticks
         self.nodes = {n: NodeState() for n in self.node_names}
         # what each node sends per SYNC (the cyclic frames but the heartbeat); a tick's read waits for them too

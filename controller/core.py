@@ -57,7 +57,7 @@ class ControllerCore:
         self.cfg = cfg
         self.safety = safety = cfg.safety
         self.fsm = GaitFsm(reset_healthy_ticks=safety.reset_healthy_ticks)
-        self.estimator = StateEstimator(cfg.body, cfg.legs)
+        self.estimator = StateEstimator(cfg.body, cfg.legs, cfg.hardware)
         joints = joint_bounds(cfg)
         self.envelope = Envelope.from_config(joints, cfg.envelope)
         self.joint_names = tuple(j.name for j in joints)

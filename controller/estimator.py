@@ -93,6 +93,7 @@ class Estimate:
 class StateEstimator:
     body: object  # config.controller_schema.BodyConfig
     legs: object  # config.controller_schema.LegConfig
+    hardware: object  # config.hardware_schema.HardwareConfig: the foot plates and the sticks' tips
     _elbow: list[float] = field(default_factory=lambda: [1.0, 1.0])
     _floor_z: float | None = None
 
@@ -107,7 +108,7 @@ class StateEstimator:
         """One tick's estimate. Three-element vectors are plain floats (numpy's call overhead is
         most of the cost on arrays this small); the rotations by the trunk are one batched numpy
         product, the same per-vector arithmetic as ``trunk @ v`` for each."""
-        b, legs = self.body, self.legs
+        b, legs, tip_radius = self.body, self.legs, self.hardware.sticks.tip_radius_m
         roll, pitch, yaw = m.trunk_rpy_rad.tolist()
         heel, toe, stick_force = m.heel_force_n.tolist(), m.toe_force_n.tolist(), m.stick_force_n.tolist()
         feet_loaded = (heel[0] + toe[0] > b.foot_loaded_n, heel[1] + toe[1] > b.foot_loaded_n)
@@ -156,13 +157,13 @@ class StateEstimator:
             x_f = (forearm[0][0], forearm[1][0], forearm[2][0])  # forearm x
             # upper arm w = cos e u - sin e x_f; the tip at the floor: A cos e + B sin e = C
             a_, b_ = b.upper_arm_m * u[2], -b.upper_arm_m * x_f[2]
-            c_ = floor_z + b.tip_radius_m - shoulder[2] - b.elbow_to_tip_m * u[2]
+            c_ = floor_z + tip_radius - shoulder[2] - b.elbow_to_tip_m * u[2]
             e, on_floor[i] = self._elbow_angle(i, a_, b_, c_)
             ce, se = math.cos(e), math.sin(e)
             w = (ce * u[0] - se * x_f[0], ce * u[1] - se * x_f[1], ce * u[2] - se * x_f[2])
             elbow = _along(shoulder, b.upper_arm_m, w)
             tip = _along(elbow, b.elbow_to_tip_m, u)
-            tips.append((tip[0], tip[1], tip[2] - b.tip_radius_m))
+            tips.append((tip[0], tip[1], tip[2] - tip_radius))
             points += [_along(shoulder, b.upper_arm_com_m, w), _along(elbow, b.forearm_com_m, u)]
         cx = cy = cz = 0.0
         for mass, (x, y, z) in zip(self._masses, points):  # summed point by point, as numpy's sum over axis 0
@@ -186,9 +187,9 @@ class StateEstimator:
         return self._ratio_on_line(est.com, list(est.ankles), est.tips)
 
     def _ratio_on_line(self, com, ankles, tips) -> float:
-        b = self.body
+        b, foot = self.body, self.hardware.foot
         corners = [(float(a[0]) + dx, float(a[1]) + dy) for a in ankles
-                   for dx in (-b.foot_heel_m, b.foot_toe_m) for dy in (-b.foot_half_width_m, b.foot_half_width_m)]
+                   for dx in (-foot.heel_back_m, foot.toe_front_m) for dy in (-foot.half_width_m, foot.half_width_m)]
         points = corners + [(float(t[0]), float(t[1])) for t in tips]
         rear, front = min(x for x, _ in points), window_on_line(convex_hull(points), float(com[1]), 0.0)[1]
         return (float(com[0]) - rear) / (front - rear) if front - rear >= b.min_support_m else math.nan
@@ -213,7 +214,7 @@ class StateEstimator:
 
     def _pivot_polygon(self, ankles, tips, feet_loaded, sticks_loaded) -> list[tuple[float, float]]:
         """The pivot polygon's vertices (x, y): each loaded ankle widened by half the sole across the heading, each loaded tip."""
-        half = self.body.foot_half_width_m
+        half = self.hardware.foot.half_width_m
         pts = []
         for i in range(2):
             if feet_loaded[i]:

@@ -25,15 +25,15 @@ if TYPE_CHECKING:
 
 
 def leg(cfg: ControllerConfig) -> Leg:
-    g = cfg.legs
-    return Leg(g.thigh_m, g.shank_m, g.hip_min_rad, g.hip_max_rad, g.knee_min_rad, g.knee_max_rad)
+    g, j = cfg.legs, cfg.hardware.joints
+    return Leg(g.thigh_m, g.shank_m, j.hip.lower_rad, j.hip.upper_rad, j.knee.lower_rad, j.knee.upper_rad)
 
 
 def joint_bounds(cfg: ControllerConfig) -> tuple[JointBounds, ...]:
     """The four joints' ranges, named as the controller names them (hip_l, knee_l, hip_r, knee_r)."""
-    g = cfg.legs
-    return tuple(JointBounds(f"{kind}_{side}", lo, hi) for side in ("l", "r")
-                 for kind, lo, hi in (("hip", g.hip_min_rad, g.hip_max_rad), ("knee", g.knee_min_rad, g.knee_max_rad)))
+    j = cfg.hardware.joints
+    return tuple(JointBounds(f"{kind}_{side}", joint.lower_rad, joint.upper_rad) for side in ("l", "r")
+                 for kind, joint in (("hip", j.hip), ("knee", j.knee)))
 
 
 def gait_planner(cfg: ControllerConfig, swing_weights: DmpWeights) -> GaitPlanner:
@@ -44,15 +44,15 @@ def gait_planner(cfg: ControllerConfig, swing_weights: DmpWeights) -> GaitPlanne
 
 
 def leg_loads(cfg: ControllerConfig) -> LegLoads:
-    return LegLoads(cfg.body, cfg.legs)
+    return LegLoads(cfg.body, leg(cfg), cfg.hardware.foot)
 
 
 def balance_gains(cfg: ControllerConfig) -> BalanceGains:
     b = cfg.balance
     return BalanceGains(com_n_m=b.com_stiffness_n_m, com_ns_m=b.com_damping_ns_m, height_n_m=b.height_stiffness_n_m,
                         height_ns_m=b.height_damping_ns_m, tilt_nm_rad=b.tilt_stiffness_nm_rad, tilt_nms_rad=b.tilt_damping_nms_rad,
-                        friction=b.friction, min_foot_n=b.min_foot_n, ankle_stiffness_nm_rad=cfg.body.ankle_stiffness_nm_rad,
-                        ankle_rest_rad=cfg.body.ankle_rest_rad)
+                        friction=b.friction, min_foot_n=b.min_foot_n, ankle_stiffness_nm_rad=cfg.hardware.joints.ankle.stiffness_nm_rad,
+                        ankle_rest_rad=cfg.hardware.joints.ankle.rest_rad)
 
 
 #: step lengths are commanded to a tenth of a millimetre

@@ -325,7 +325,7 @@ class GaitPlanner:
                 continue
             other = 1 - i
             stays = [(float(est.tips[other][0]), float(est.tips[other][1]))] if est.sticks_loaded[other] else []
-            lo, hi = lift_window(ankles, stays, float(est.com[1]), self.loads.body.foot_half_width_m, p.shift_margin_m, p.balance_margin_m,
+            lo, hi = lift_window(ankles, stays, float(est.com[1]), self.loads.foot.half_width_m, p.shift_margin_m, p.balance_margin_m,
                                   share=p.comfort_stick_n / (self.loads.total_kg * GRAVITY))
             if hi - lo > best[1] - best[0]:
                 best = (lo, hi)

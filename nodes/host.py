@@ -137,7 +137,7 @@ class NodesHost:
         except Exception:
             self.world.close()
             raise
-        joints = sim_cfg.model.joints
+        joints = sim_cfg.hardware.joints
         self.ports: dict[str, NodePort] = {}
         # The node boards in node-id order drive the exoskeleton's joints in the same order.
         for joint, (node, joint_name) in enumerate(zip(catalog.joint_nodes, EXO_JOINTS, strict=True)):

@@ -37,7 +37,7 @@ class Arms:
         b = self.body
         # the fixed geometry of the tip and shoulder points, and of the arms' command bounds
         self._stick_reach = b.forearm_m + b.grip_m + b.stick_m  # from the elbow along the forearm's -z
-        self._tip_radius = np.array([0.0, 0.0, cfg.model.sticks.tip_radius_m])
+        self._tip_radius = np.array([0.0, 0.0, cfg.hardware.sticks.tip_radius_m])
         self._shoulder_local = {s: np.array([0.0, sign * b.shoulder_half_width_m, b.shoulder_above_hip_m])
                                 for s, sign in zip(SIDES, (1.0, -1.0))}
         arms = world.arms
@@ -81,7 +81,7 @@ class Arms:
                 point = start + (goal - start) * minimum_jerk(u)
                 lift = g.stick_lift_m * math.sin(math.pi * min(u, 1.0)) ** 2
                 press = SET_DOWN_PRESS_M * min(max(u - 1.0, 0.0) / SET_DOWN_SHARE, 1.0)
-                point = point + np.array([0.0, 0.0, lift - press + self.cfg.model.sticks.tip_radius_m])
+                point = point + np.array([0.0, 0.0, lift - press + self.cfg.hardware.sticks.tip_radius_m])
                 reach = point - self.shoulder(side)
                 length = float(np.linalg.norm(reach))
                 if length > upper + lower - 1e-4:  # out of reach: the straight arm toward it

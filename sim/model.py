@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from config.sim_schema import ModelConfig, SegmentConfig
+from config.sim_schema import SegmentConfig, SimConfig
 
 SIDES = ("l", "r")
 LEG_JOINTS = ("hip", "knee", "ankle")
@@ -93,9 +93,10 @@ def _segment(seg: SegmentConfig, body_mass: float, height: float) -> tuple[float
     return seg.mass_fraction * body_mass, seg.length_fraction * height
 
 
-def build_body(cfg: ModelConfig) -> Body:
+def build_body(sim: SimConfig) -> Body:
     """All segment dimensions and link inertias of the configured patient and exoskeleton."""
-    p, exo, stick = cfg.patient, cfg.exoskeleton, cfg.sticks
+    cfg, hw = sim.model, sim.hardware
+    p, exo, stick = cfg.patient, cfg.exoskeleton, hw.sticks
     mass, height = p.mass_kg, p.height_m
     m_thigh, l_thigh = _segment(p.thigh, mass, height)
     m_shank, l_shank = _segment(p.shank, mass, height)
@@ -123,8 +124,8 @@ def build_body(cfg: ModelConfig) -> Body:
         m = m_shank + exo.shank_kg
         links.append(Link(f"shank_{s}", m, (0.0, 0.0, -p.shank.com_fraction * l_shank), _rod_inertia(m, l_shank, p.shank.gyration_fraction)))
         m = m_foot + exo.foot_kg
-        foot_len = cfg.foot.heel_back_m + cfg.foot.toe_front_m
-        fx = (cfg.foot.toe_front_m - cfg.foot.heel_back_m) / 2
+        foot_len = hw.foot.heel_back_m + hw.foot.toe_front_m
+        fx = (hw.foot.toe_front_m - hw.foot.heel_back_m) / 2
         i_foot = m * (p.foot.gyration_fraction * foot_len) ** 2
         links.append(Link(f"foot_{s}", m, (fx, 0.0, -ankle_h / 2), (i_foot * 0.3, i_foot, i_foot)))
     for s in SIDES:
@@ -180,10 +181,11 @@ def _joint(name: str, parent: str, child: str, xyz, axis, lower: float, upper: f
             f'<limit lower="{lower:.6g}" upper="{upper:.6g}" effort="{effort:.6g}" velocity="{velocity:.6g}"/></joint>')
 
 
-def urdf(cfg: ModelConfig, body: Body | None = None) -> str:
+def urdf(sim: SimConfig, body: Body | None = None) -> str:
     """URDF text of the HHEA (deterministic for a configuration)."""
-    body = body or build_body(cfg)
-    j, foot = cfg.joints, cfg.foot
+    body = body or build_body(sim)
+    cfg, hw = sim.model, sim.hardware
+    j, arms, foot = hw.joints, cfg.joints, hw.foot
     skin, exo_colour, stick_colour = "0.85 0.7 0.6 1", "0.3 0.45 0.75 1", "0.6 0.6 0.6 1"
     parts = ['<?xml version="1.0"?>', '<robot name="hhea">']
     trunk = body.link("trunk")
@@ -218,8 +220,8 @@ def urdf(cfg: ModelConfig, body: Body | None = None) -> str:
         parts.append(f'<link name="upper_arm_{s}">{_inertial(ua)}{_cylinder(0, -body.upper_arm_m, 0.04, skin)}</link>')
         parts.append(f'<link name="forearm_{s}">{_inertial(fa)}{_cylinder(0, -body.forearm_m, 0.035, skin)}'
                      f'{_cylinder(-body.forearm_m - body.grip_m, tip_z, 0.012, stick_colour)}'
-                     f'{_sphere((0, 0, tip_z), cfg.sticks.tip_radius_m, rgba="0.1 0.1 0.1 1")}</link>')
-        sf, sa, el = j.shoulder_flexion, j.shoulder_abduction, j.elbow
+                     f'{_sphere((0, 0, tip_z), hw.sticks.tip_radius_m, rgba="0.1 0.1 0.1 1")}</link>')
+        sf, sa, el = arms.shoulder_flexion, arms.shoulder_abduction, arms.elbow
         parts.append(_joint(f"shoulder_flexion_{s}", "trunk", f"shoulder_{s}", (0, y, body.shoulder_above_hip_m), (0, -1, 0), sf.lower_rad, sf.upper_rad, sf.torque_limit_nm, sf.velocity_limit_rad_s))
         parts.append(_joint(f"shoulder_abduction_{s}", f"shoulder_{s}", f"upper_arm_{s}", (0, 0, 0), (_SIGN[s], 0, 0), sa.lower_rad, sa.upper_rad, sa.torque_limit_nm, sa.velocity_limit_rad_s))
         parts.append(_joint(f"elbow_{s}", f"upper_arm_{s}", f"forearm_{s}", (0, 0, -body.upper_arm_m), (0, -1, 0), el.lower_rad, el.upper_rad, el.torque_limit_nm, el.velocity_limit_rad_s))
@@ -227,7 +229,7 @@ def urdf(cfg: ModelConfig, body: Body | None = None) -> str:
     return "\n".join(parts) + "\n"
 
 
-def urdf_file(cfg: ModelConfig, directory: Path) -> Path:
+def urdf_file(cfg: SimConfig, directory: Path) -> Path:
     """Write the URDF once per configuration (content-addressed) and return its path."""
     text = urdf(cfg)
     path = directory / f"hhea-{hashlib.sha256(text.encode()).hexdigest()[:16]}.urdf"

@@ -131,7 +131,7 @@ class Patient:
         if self.cfg.mode == "sagittal":
             xs = [p[0] for p in ankles + tip_xy]
             return float(min(com[0] - min(xs), max(xs) - com[0])) if xs else -math.inf
-        return pivot_margin(ankles, tip_xy, self.cfg.model.foot.half_width_m, com)
+        return pivot_margin(ankles, tip_xy, self.cfg.hardware.foot.half_width_m, com)
 
     # -- the gait cycle -------------------------------------------------------------------------
 
@@ -165,7 +165,7 @@ class Patient:
         g = self.g
         ankles = np.array([self.ankle_xy(s) for s in SIDES if self.stance[s]]).reshape(-1, 2)
         stays = np.array([self.tip_point(s)[:2] for s in SIDES if s not in lifting and self.planted[s]]).reshape(-1, 2)
-        return lift_window(ankles, stays, float(self.kin.com[1]), self.cfg.model.foot, shift_margin_m=g.shift_margin_m,
+        return lift_window(ankles, stays, float(self.kin.com[1]), self.cfg.hardware.foot, shift_margin_m=g.shift_margin_m,
                            balance_margin_m=g.balance_margin_m, max_stick_share=g.stick_force_comfort_n / (self.world.total_mass * GRAVITY))
 
     def _stick_goal(self, side: str, start: np.ndarray) -> np.ndarray:
@@ -178,7 +178,7 @@ class Patient:
         sign = 1.0 if side == "l" else -1.0
         origin_x = float(self.kin.com[0]) if p.intention.reference == "com" else float(self.ankle_xy(self.front_foot())[0])
         x = origin_x + self.plan.intention.ahead_m + float(self.rng.normal(0.0, p.stick_noise_m))
-        y, z = sign * p.stick_half_width_m, self.cfg.model.sticks.tip_radius_m
+        y, z = sign * p.stick_half_width_m, self.cfg.hardware.sticks.tip_radius_m
         shoulder = self.shoulder(side)
         reach = self.body.arm_span_m(p.stick_reach_elbow_rad)
         far = shoulder[0] + math.sqrt(max(reach**2 - (y - shoulder[1]) ** 2 - (z - shoulder[2]) ** 2, 0.0))
@@ -195,7 +195,7 @@ class Patient:
 
     def swing_support(self, stance: str) -> np.ndarray:
         """The points of the support polygon of a swing over leg ``stance`` (its sole, both tips)."""
-        return swing_support(self.ankle_xy(stance), self.cfg.model.foot, np.array([self.tip_point(s)[:2] for s in SIDES]))
+        return swing_support(self.ankle_xy(stance), self.cfg.hardware.foot, np.array([self.tip_point(s)[:2] for s in SIDES]))
 
     def swing_span(self, stance: str) -> tuple[float, float]:
         """(rear, front) of X_SP over :meth:`swing_support`: its rear-most point (the heel) and its
@@ -333,7 +333,7 @@ class Patient:
         return self.kin.memo(("foot_contacts", self.stance["l"], self.stance["r"]), self._foot_contacts)
 
     def _foot_contacts(self) -> tuple[Contact, ...]:
-        half = self.cfg.model.foot.half_width_m
+        half = self.cfg.hardware.foot.half_width_m
         out = []
         for f in SIDES:
             if self.stance[f]:
@@ -348,7 +348,7 @@ class Patient:
         return self.kin.memo(("ankle_spring_moment", self.stance["l"], self.stance["r"]), self._ankle_spring_moment)
 
     def _ankle_spring_moment(self) -> np.ndarray:
-        ankle = self.cfg.model.joints.ankle
+        ankle = self.cfg.hardware.joints.ankle
         moment = np.zeros(3)
         for f in SIDES:
             if self.stance[f]:

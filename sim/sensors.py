@@ -61,7 +61,7 @@ class Sensors:
     def __init__(self, world: World, cfg: SensorsConfig, rng: np.random.Generator) -> None:
         self.world, self.cfg, self.rng = world, cfg, rng
         self._exo = [world.joint_index[n] for n in EXO_JOINTS]
-        foot = world.cfg.model.foot
+        foot = world.cfg.hardware.foot
         self._heel_toe_split_x = (foot.toe_front_m - foot.heel_back_m) / 2
         self._gravity = np.array([0.0, 0.0, GRAVITY])  # what an accelerometer at rest reads, world frame
         # each value's resolution, in the order :meth:`read` lays the values out

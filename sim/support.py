@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from config.sim_schema import FootConfig
+from config.hardware_schema import FootConfig
 from sim.truth import convex_hull_2d, pivot_polygon, successors
 
 

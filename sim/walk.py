@@ -273,7 +273,7 @@ class Walker:
         tips = [s for s in SIDES if w.contact_normal_force(f"forearm_{s}") > stick_n]
         ankles = np.array([p.ankle_xy(s) for s in feet]).reshape(-1, 2)
         tip_xy = np.array([p.tip_point(s)[:2] for s in tips]).reshape(-1, 2)
-        poly = pivot_polygon(ankles, tip_xy, ankle_halfwidth=self.cfg.model.foot.half_width_m)
+        poly = pivot_polygon(ankles, tip_xy, ankle_halfwidth=self.cfg.hardware.foot.half_width_m)
         heading = w.link_frame("trunk")[1][:2, 0]
         heading = heading / np.linalg.norm(heading)  # the support and the CoM along it
         return fore_aft_ratio(float(self.kin.com[:2] @ heading), (poly @ heading).tolist(), min_support_m)
@@ -306,12 +306,12 @@ class Walker:
 def initial_pose(cfg: SimConfig) -> StancePose:
     """Standing in a short split stance, the trunk pitched 0.1 rad, the sticks planted 0.25 m ahead of
     the front ankle, or nearer if the arms, bent as far as ``stick_reach_elbow_rad``, reach no farther."""
-    body = build_body(cfg.model)
+    body = build_body(cfg)
     pitch, hip_x, feet, half = 0.10, 0.05, (0.06, -0.06), cfg.patient.stick_half_width_m
     shoulder = np.array([hip_x + body.shoulder_above_hip_m * math.sin(pitch), body.shoulder_half_width_m,
                          body.hip_height_m + body.shoulder_above_hip_m * math.cos(pitch)])
     reach = body.arm_span_m(cfg.patient.stick_reach_elbow_rad)
-    ahead = math.sqrt(max(reach**2 - (half - shoulder[1]) ** 2 - (shoulder[2] - cfg.model.sticks.tip_radius_m) ** 2, 0.0))
+    ahead = math.sqrt(max(reach**2 - (half - shoulder[1]) ** 2 - (shoulder[2] - cfg.hardware.sticks.tip_radius_m) ** 2, 0.0))
     tips_x = min(max(feet) + 0.25, float(shoulder[0] + ahead))
     return StancePose(foot_x_m=feet, tip_xy_m=((tips_x, half), (tips_x, -half)), trunk_pitch_rad=pitch, hip_x_m=hip_x, knee_rad=0.08)
 

@@ -140,7 +140,7 @@ class World:
 
     def __init__(self, cfg: SimConfig, *, gui: bool = False) -> None:
         self.cfg = cfg
-        self.body: Body = build_body(cfg.model)
+        self.body: Body = build_body(cfg)
         self.dt = 1.0 / cfg.physics.rate_hz
         self._sagittal = cfg.mode == "sagittal"
         self.steps = 0
@@ -153,7 +153,7 @@ class World:
         )
         c.setGravity(0, 0, -GRAVITY)
         self.floor = c.loadURDF("plane.urdf")
-        path = urdf_file(cfg.model, URDF_CACHE)
+        path = urdf_file(cfg, URDF_CACHE)
         self.robot = c.loadURDF(str(path), [0, 0, 2], flags=pybullet.URDF_USE_INERTIA_FROM_FILE)
         self.joint_index = {c.getJointInfo(self.robot, i)[1].decode(): i for i in range(c.getNumJoints(self.robot))}
         assert tuple(self.joint_index) == JOINT_ORDER, "URDF joint order changed"
@@ -173,14 +173,14 @@ class World:
         # ... except at the ankles, where a weak one is the damper (implicit, stable at 250 Hz).
         ankles = [self.joint_index[n] for n in ANKLE_JOINTS]
         c.setJointMotorControlArray(self.robot, ankles, pybullet.VELOCITY_CONTROL, targetVelocities=[0, 0],
-                                    forces=[cfg.model.joints.ankle.friction_nm] * 2)
+                                    forces=[cfg.hardware.joints.ankle.friction_nm] * 2)
         self._exo_idx = np.array([self.joint_index[n] for n in EXO_JOINTS])
         self._arm_idx = np.array([self.joint_index[n] for n in ARM_JOINT_NAMES])
         self._ankle_idx = np.array(ankles)
         self._torque_idx = list(self._exo_idx) + list(self._arm_idx) + list(self._ankle_idx)
         self._torque_idx_array = np.array(self._torque_idx)
         self._all_joints = list(range(len(JOINT_ORDER)))
-        j = cfg.model.joints
+        j = cfg.hardware.joints
         fw = cfg.firmware
         # One law for every torque-driven joint, in the order of _torque_idx (exoskeleton, arms,
         # ankles): the node boards' and the arms' loops own their columns, the ankle springs are
@@ -199,7 +199,8 @@ class World:
                   np.full(4, fw.hold_damping_nms_rad), np.full(4, fw.hold_torque_limit_nm)),
             law=self._law[:, self._exo_slice],
         )
-        arm_specs = [j.shoulder_flexion, j.shoulder_abduction, j.elbow] * 2
+        arms = cfg.model.joints
+        arm_specs = [arms.shoulder_flexion, arms.shoulder_abduction, arms.elbow] * 2
         pc = cfg.patient
         self.arms = JointImpedance(
             ARM_JOINT_NAMES,
@@ -261,7 +262,7 @@ class World:
         for side, (tx, ty) in zip("lr", pose.tip_xy_m):
             sign = 1.0 if side == "l" else -1.0
             shoulder = hip_world + rot @ np.array([0.0, sign * b.shoulder_half_width_m, b.shoulder_above_hip_m])
-            tip = np.array([tx, ty, self.cfg.model.sticks.tip_radius_m + 0.002])
+            tip = np.array([tx, ty, self.cfg.hardware.sticks.tip_radius_m + 0.002])
             flex, abd, elbow = arm_ik(rot.T @ (tip - shoulder), upper, lower, side)
             q[f"shoulder_flexion_{side}"], q[f"shoulder_abduction_{side}"], q[f"elbow_{side}"] = flex, abd, elbow
         com_local = np.array(c.getDynamicsInfo(self.robot, -1)[3])  # base inertial frame offset

@@ -32,7 +32,7 @@ def fitted_body(cfg: Config) -> dict[str, Any]:
     the simulation's own body (what a clinic measures when it sets the exoskeleton up)."""
     from sim.model import build_body
 
-    body, model = build_body(cfg.sim.model), cfg.sim.model
+    body = build_body(cfg.sim)
     trunk, foot = body.link("trunk"), body.link("foot_l")
     upper_arm, shoulder = body.link("upper_arm_l"), body.link("shoulder_l")
     upper_arm_kg = upper_arm.mass_kg + shoulder.mass_kg  # the shoulder's small link sits at the joint
@@ -44,10 +44,6 @@ def fitted_body(cfg: Config) -> dict[str, Any]:
         "controller.body.shoulder_xyz_m": [0.0, body.shoulder_half_width_m, body.shoulder_above_hip_m],
         "controller.body.upper_arm_m": body.upper_arm_m,
         "controller.body.elbow_to_tip_m": body.forearm_m + body.grip_m + body.stick_m,
-        "controller.body.tip_radius_m": model.sticks.tip_radius_m,
-        "controller.body.foot_heel_m": model.foot.heel_back_m,
-        "controller.body.foot_toe_m": model.foot.toe_front_m,
-        "controller.body.foot_half_width_m": model.foot.half_width_m,
         "controller.body.trunk_kg": trunk.mass_kg,
         "controller.body.trunk_com_xz_m": [trunk.com_xyz[0], trunk.com_xyz[2]],
         "controller.body.thigh_kg": body.link("thigh_l").mass_kg,
@@ -74,7 +70,7 @@ def _body_overrides(base: Config, *, mass_kg: float, height_m: float, stick_m: f
         "sim.model.patient.shoulder_width_m": ref.shoulder_width_m * scale,
         "sim.model.patient.trunk_com_above_hip_m": ref.trunk_com_above_hip_m * scale,
         "sim.model.patient.trunk_depth_m": ref.trunk_depth_m * scale,
-        "sim.model.sticks.length_m": stick_m,
+        "hardware.sticks.length_m": stick_m,
     }
 
 
@@ -86,7 +82,7 @@ def patient_config(base: Config, patient: VirtualPatient, *, source: str = "<pat
         raise ConfigError("a virtual patient needs the sim and controller sections", key="sim", source=source)
     ref = base.sim.model.patient
     scale = patient.height_m / ref.height_m  # every length of the body scales with the height
-    stick_m = patient.stick_length_m if patient.stick_length_m is not None else base.sim.model.sticks.length_m * scale
+    stick_m = patient.stick_length_m if patient.stick_length_m is not None else base.hardware.sticks.length_m * scale
     body = _body_overrides(base, mass_kg=patient.mass_kg, height_m=patient.height_m, stick_m=stick_m, length_scale=scale)
     joints = base.sim.model.joints
     strength = patient.arm_strength
@@ -135,7 +131,7 @@ def _apply(cfg: Config, overrides: dict[str, Any], source: str) -> Config:
 
 #: the configuration's keys that a patient's field sets, for errors in the patient's terms
 _PATIENT_KEYS = {
-    "sim.model.sticks.length_m": "stick_length_m",
+    "hardware.sticks.length_m": "stick_length_m",
     "sim.model.patient.mass_kg": "mass_kg",
     "sim.model.patient.height_m": "height_m",
     "sim.patient.intention.spread_m": "placement.spread_m",

@@ -49,14 +49,14 @@ def truth(walker: Walker, world: World, threshold_n: float = 20.0):
     tips = np.array([h(walker.tip_point(s)) for s in "lr"])
     feet = [world.contact_normal_force(f"foot_{s}") > threshold_n for s in "lr"]
     sticks = [world.contact_normal_force(f"forearm_{s}") > threshold_n for s in "lr"]
-    poly = pivot_polygon(ankles[feet][:, :2], tips[sticks][:, :2], ankle_halfwidth=CFG.sim.model.foot.half_width_m)
+    poly = pivot_polygon(ankles[feet][:, :2], tips[sticks][:, :2], ankle_halfwidth=CFG.hardware.foot.half_width_m)
     return com, ankles, tips, feet, sticks, fore_aft_ratio(float(com[0]), poly[:, 0].tolist(), 0.0)
 
 
 @pytest.mark.parametrize("mode", ["sagittal", "full3d"])
 def test_estimates_match_the_ground_truth_over_a_walk(mode):
     sim_cfg = dataclasses.replace(CFG.sim, mode=mode)
-    estimator = StateEstimator(CFG.controller.body, CFG.controller.legs)
+    estimator = StateEstimator(CFG.controller.body, CFG.controller.legs, CFG.hardware)
     errors: dict[str, list[float]] = {"com": [], "ankle": [], "tip": [], "ratio": [], "stance": []}
     agree = []
     with World(sim_cfg) as world:
@@ -78,7 +78,7 @@ def test_estimates_match_the_ground_truth_over_a_walk(mode):
                 errors["ratio"].append(abs(est.x_ratio - ratio))
             if all(feet) and all(sticks):  # where a swing may start: over its stance sole and the tips
                 stance = "lr".index(OTHER[walker.next_swing])
-                foot = CFG.sim.model.foot
+                foot = CFG.hardware.foot
                 sole = [ankles[stance][:2] + (dx, dy) for dx in (-foot.heel_back_m, foot.toe_front_m) for dy in (-foot.half_width_m, foot.half_width_m)]
                 support = np.vstack([sole, tips[:, :2]])
                 rear, front = support[:, 0].min(), extent_on_line(support, com[:2])[1]  # the heel, the tips' line
@@ -98,7 +98,7 @@ def test_estimates_match_the_ground_truth_over_a_walk(mode):
 
 
 def test_a_stick_that_cannot_reach_the_floor_keeps_the_last_elbow_angle_and_says_so():
-    estimator = StateEstimator(CFG.controller.body, CFG.controller.legs)
+    estimator = StateEstimator(CFG.controller.body, CFG.controller.legs, CFG.hardware)
     standing = Measurements(
         np.array([0.2, 0.2, 0.2, 0.2]), np.zeros(3), np.array([[0.0, -0.3, 0.0], [0.0, -0.3, 0.0]]),
         np.array([100.0, 100.0]), np.array([200.0, 200.0]), np.array([200.0, 200.0]),

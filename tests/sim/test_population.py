@@ -53,7 +53,7 @@ def test_the_reference_patient_is_the_default_configuration():
 def test_every_shipped_patient_loads_and_its_body_is_built(path):
     patient, cfg = load_patient(path, BASE)
     assert patient.name == path.stem
-    body = build_body(cfg.sim.model)
+    body = build_body(cfg.sim)
     assert cfg.sim.model.patient.mass_kg == patient.mass_kg and body.hip_height_m > 0.6
     assert cfg.sim.patient.intention.regime == patient.placement.regime
 
@@ -62,18 +62,18 @@ def test_a_patient_changes_the_body_the_arms_the_placement_and_the_fall_criterio
     patient, cfg = load_patient(population.PATIENTS_DIR / "small-light.yaml", BASE)
     scale = patient.height_m / BASE.sim.model.patient.height_m
     assert cfg.sim.model.patient.height_m == patient.height_m
-    assert cfg.sim.model.sticks.length_m == pytest.approx(BASE.sim.model.sticks.length_m * scale)
+    assert cfg.hardware.sticks.length_m == pytest.approx(BASE.hardware.sticks.length_m * scale)
     assert cfg.sim.model.patient.hip_width_m == pytest.approx(BASE.sim.model.patient.hip_width_m * scale)
     assert cfg.sim.fall.min_hip_height_m == pytest.approx(BASE.sim.fall.min_hip_height_m * scale)
     assert cfg.sim.model.joints.elbow.torque_limit_nm == pytest.approx(BASE.sim.model.joints.elbow.torque_limit_nm * 0.7)
     assert cfg.sim.patient.arm_stiffness_nm_rad == pytest.approx(BASE.sim.patient.arm_stiffness_nm_rad * 0.7)
-    assert cfg.sim.model.joints.hip == BASE.sim.model.joints.hip  # the exoskeleton's motors are the device's
+    assert cfg.hardware.joints == BASE.hardware.joints  # the exoskeleton's motors are the device's
     assert (cfg.sim.patient.intention.regime, cfg.sim.patient.stick_noise_m) == ("steady", 0.015)
 
 
 def test_the_controllers_body_model_is_the_patient_as_measured_with_the_fits_errors():
     patient, cfg = load_patient(population.PATIENTS_DIR / "small-light.yaml", BASE)  # lengths 2 % long, 2 kg light
-    true = build_body(cfg.sim.model)
+    true = build_body(cfg.sim)
     assert cfg.controller.legs.thigh_m == pytest.approx(true.thigh_m * 1.02)
     assert cfg.controller.body.elbow_to_tip_m == pytest.approx((true.forearm_m + true.grip_m + true.stick_m) * 1.02)
     total = (cfg.controller.body.trunk_kg + 2 * (cfg.controller.body.thigh_kg + cfg.controller.body.shank_kg
@@ -157,7 +157,7 @@ def test_the_draws_extremes_are_valid_patients():
 def test_every_drawn_patient_makes_a_valid_configuration_and_round_trips_as_a_file(seed, index, tmp_path_factory):
     patient = population.draw_patient(np.random.default_rng(np.random.SeedSequence([seed, index])), f"p{index}")
     cfg = patient_config(BASE, patient)
-    assert build_body(cfg.sim.model).total_mass_kg > patient.mass_kg  # with the exoskeleton and sticks
+    assert build_body(cfg.sim).total_mass_kg > patient.mass_kg  # with the exoskeleton and sticks
     path = tmp_path_factory.mktemp("pop") / "p.yaml"
     path.write_text(patient_yaml(patient))
     again, again_cfg = load_patient(path, BASE)

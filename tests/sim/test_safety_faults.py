@@ -419,7 +419,7 @@ def test_F16_a_measured_joint_beyond_its_limit_is_a_fault():
 
         def report(tick):
             if tick >= t0:
-                port.stuck_position = CFG.controller.legs.knee_max_rad + 2 * excess
+                port.stuck_position = CFG.hardware.joints.knee.upper_rad + 2 * excess
             original(tick)
 
         rig.host._report = report

@@ -143,7 +143,7 @@ def test_the_patients_lean_goal_is_its_intended_x_within_what_its_arms_hold(lean
         p, g = walker.patient, SIM.gait
         p.plan.intention = StepIntention(SIM.patient.intention.ahead_m, lean_x)
         ankle = float(p.ankle_xy(p.front_foot())[0])
-        heel = ankle - SIM.model.foot.heel_back_m
+        heel = ankle - SIM.hardware.foot.heel_back_m
         (lx, ly), (rx, ry) = (p.tip_point(s)[:2] for s in "lr")
         y = float(walker.kin.com[1])
         tips = lx + (rx - lx) * (y - ly) / (ry - ly)  # the tips' line where the CoM's line crosses it
@@ -173,7 +173,7 @@ def test_a_stick_goal_beyond_the_arms_reach_is_clamped_and_counted():
         assert p.clamps == {"reach": 1, "advance": 0} and p.plan.clamped == 1
         assert start[0] < goal[0] < float(p.ankle_xy(p.front_foot())[0]) + 0.8
         reach = walker.body.arm_span_m(cfg.patient.stick_reach_elbow_rad)
-        tip = goal + np.array([0.0, 0.0, cfg.model.sticks.tip_radius_m])
+        tip = goal + np.array([0.0, 0.0, cfg.hardware.sticks.tip_radius_m])
         assert np.linalg.norm(tip - p.shoulder("l")) == pytest.approx(reach, abs=1e-6)
         p.plan.intention = dataclasses.replace(p.plan.intention, ahead_m=-0.5)  # behind where the stick stands: it still moves on
         assert p._stick_goal("l", start)[0] == pytest.approx(start[0] + cfg.patient.stick_min_advance_m)

@@ -21,12 +21,12 @@ def _world(mode: str = "full3d") -> World:
 
 
 def test_body_matches_the_configured_patient_and_exoskeleton():
-    body = build_body(CFG.sim.model)
+    body = build_body(CFG.sim)
     exo = CFG.sim.model.exoskeleton
-    sticks = 2 * CFG.sim.model.sticks.mass_kg
+    sticks = 2 * CFG.hardware.sticks.mass_kg
     expected = CFG.sim.model.patient.mass_kg + exo.trunk_kg + 2 * (exo.thigh_kg + exo.shank_kg + exo.foot_kg) + sticks
     assert body.total_mass_kg == pytest.approx(expected + 2 * 0.05)  # + the two shoulder link stubs
-    text = urdf(CFG.sim.model)
+    text = urdf(CFG.sim)
     assert text.count('type="revolute"') == 12 and 'name="knee_l"' in text
 
 
@@ -162,8 +162,8 @@ def test_invalid_actuator_commands_are_rejected_and_counted():
     "key, value, message",
     [
         ("sim.model.patient.mass_kg", -70.0, "sim.model.patient.mass_kg: -70.0 is below the minimum 30"),
-        ("sim.model.joints.knee.lower_rad", 2.5, "sim.model.joints.knee.lower_rad: 2.5 must be below upper_rad 2.0"),
-        ("sim.model.sticks.length_m", 0.30, "sim.model.sticks.length_m: the sticks cannot reach the ground"),
+        ("hardware.joints.knee.lower_rad", 2.5, "hardware.joints.knee.lower_rad: 2.5 must be below upper_rad 2.0"),
+        ("hardware.sticks.length_m", 0.30, "hardware.sticks.length_m: the sticks cannot reach the ground"),
         ("sim.model.exoskeleton.thigh_kg", -1.0, "sim.model.exoskeleton.thigh_kg: -1.0 is below the minimum 0"),
     ],
 )

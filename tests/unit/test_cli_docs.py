@@ -42,7 +42,7 @@ def test_version_names_the_installed_distribution(capsys):
 def test_config_check_accepts_the_packaged_file_and_names_the_key_of_a_bad_one(tmp_path, capsys):
     assert main(["config", "check", str(ROOT / "config" / "default.yaml"), "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
-    assert result["valid"] and result["sections"] == {"protocol": True, "controller": True, "sim": True, "nodes": True}
+    assert result["valid"] and result["sections"] == {"protocol": True, "hardware": True, "controller": True, "sim": True, "nodes": True}
     # the step bounds and the swing's duration, scaled with the leg length in the file, in metres and seconds
     assert result["step_m"] == {"leg_length": 0.927, "init": 0.15, "min": 0.06, "max": 0.25} and result["swing_s"] == 1.2
     bad = tmp_path / "bad.yaml"

@@ -467,7 +467,7 @@ def test_overrides_of_entries_and_tuples():
         ({"bus.chanel": "vcan0"}, "<overrides>: bus.chanel: unknown key; expected one of: "
          "bitrate_bit_s, channel, interface, receive_own_messages (did you mean 'channel'?)"),
         ({"bsu.channel": "vcan0"}, "<overrides>: bsu: unknown key; expected one of: "
-         "bus, controller, nodes, protocol, schema_version, sim (did you mean 'bus'?)"),
+         "bus, controller, hardware, nodes, protocol, schema_version, sim (did you mean 'bus'?)"),
         ({"bus.interface": "socketcan", "bus.channel": "my bus"}, "<overrides>: bus.channel: "
          "'my bus' is not a valid Linux interface name for socketcan "
          "(1 to 15 characters from A-Z a-z 0-9 _ . -)"),
@@ -632,3 +632,27 @@ def test_mutated_valid_config_gives_config_or_config_error(dotted, value):
         with_overrides(base, {dotted: value})
     except ConfigError as exc:
         assert len(str(exc).splitlines()) == 1
+
+
+# --- the hardware section: one definition the controller and the simulation both read ------------
+
+
+def test_the_controller_and_the_simulation_read_the_one_hardware_section():
+    cfg = load_config(default_config_path())
+    assert cfg.controller.hardware is cfg.hardware and cfg.sim.hardware is cfg.hardware
+    moved = with_overrides(cfg, {"hardware.foot.half_width_m": 0.05})
+    assert moved.controller.hardware.foot.half_width_m == moved.sim.hardware.foot.half_width_m == 0.05
+    assert "hardware" not in config_to_dict(cfg)["controller"] and "hardware" not in config_to_dict(cfg)["sim"]
+    assert dataclasses.replace(cfg.sim, mode="sagittal").hardware is cfg.hardware  # a copy of a section keeps it
+
+
+def test_a_file_with_a_controller_needs_the_hardware_section_and_never_has_it_under_the_controller():
+    data = config_to_dict(load_config(default_config_path()))
+    without = {k: v for k, v in data.items() if k != "hardware"}
+    with pytest.raises(ConfigError, match=r"hardware: missing required key"):
+        parse_config(yaml.safe_dump(without))
+    data["controller"]["hardware"] = data["hardware"]
+    with pytest.raises(ConfigError, match=r"controller\.hardware: unknown key"):
+        parse_config(yaml.safe_dump(data))
+    bare = {k: v for k, v in without.items() if k not in ("controller", "sim")}
+    assert parse_config(yaml.safe_dump(bare)).hardware is None  # a bus-only file (buscheck, record) needs none

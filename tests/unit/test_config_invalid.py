@@ -35,6 +35,7 @@ import yaml
 
 import config as config_package
 from config import Config, ConfigError, default_config_path, load_config, load_yaml
+from config.loader import DERIVED_KEY
 
 DEFAULT = default_config_path().read_text(encoding="utf-8")
 
@@ -118,7 +119,7 @@ _CTT = "  command_timeout_ticks: 3"
 _HBT = "  heartbeat_timeout_ms: 300"
 _TORQUE = "    max_torque_nm: 100.0"
 _STEP = "    min_fraction: 0.0647      # 0.060 m\n    max_fraction: 0.2697      # 0.250 m"
-_HIP_JOINT = "hip:              {lower_rad: -0.50, upper_rad: 2.00, torque_limit_nm: 100.0,"
+_HIP_JOINT = "hip:   {lower_rad: -0.50, upper_rad: 2.00, torque_limit_nm: 100.0,"
 
 BAD: list[Bad] = [
     # --- YAML syntax: the error points at the edited line (or names it as its context) ----------
@@ -149,8 +150,8 @@ BAD: list[Bad] = [
         "controller.safety.lost_ticks", "missing required key"),
     Bad("missing-envelope-section", "missing-key", _without("controller.envelope"), "controller.envelope",
         "missing required key"),
-    Bad("missing-joint-limit", "missing-key", _text(_HIP_JOINT, "hip:              {lower_rad: -0.50, torque_limit_nm: 100.0,"),
-        "sim.model.joints.hip.upper_rad", "missing required key"),
+    Bad("missing-joint-limit", "missing-key", _text(_HIP_JOINT, "hip:   {lower_rad: -0.50, torque_limit_nm: 100.0,"),
+        "hardware.joints.hip.upper_rad", "missing required key"),
     # --- wrong types -------------------------------------------------------------------------
     Bad("type-string-for-number", "wrong-type", _text(_TORQUE, "    max_torque_nm: 100 Nm"),
         "controller.envelope.max_torque_nm", "expected a number, got '100 Nm'"),
@@ -169,16 +170,14 @@ BAD: list[Bad] = [
     Bad("type-mapping-for-number", "wrong-type", _set("protocol.max_delta_counter", {"value": 2}),
         "protocol.max_delta_counter", "expected an integer, got a mapping"),
     # --- a lower bound above its upper bound ------------------------------------------------
-    Bad("minmax-hip-limits", "min-above-max", _text("    hip_min_rad: -0.50", "    hip_min_rad: 2.10"),
-        "controller.legs.hip_min_rad", "must be below hip_max_rad"),
-    Bad("minmax-knee-limits-equal", "min-above-max", _text("    knee_min_rad: 0.00", "    knee_min_rad: 2.00"),
-        "controller.legs.knee_min_rad", "must be below knee_max_rad"),
+    Bad("minmax-knee-limits-equal", "min-above-max", _set("hardware.joints.knee.lower_rad", 2.0),
+        "hardware.joints.knee.lower_rad", "2.0 must be below upper_rad 2.0"),
     Bad("minmax-step-length", "min-above-max", _text(_STEP, "    min_fraction: 0.30\n    max_fraction: 0.2697"),
         "controller.step.min_fraction", "must not exceed max_fraction 0.2697"),
     Bad("minmax-learning-alpha", "min-above-max", _text("    alpha_max: 0.0", "    alpha_max: -30.0"),
         "controller.learning.alpha_min", "must be below alpha_max"),
-    Bad("minmax-sim-joint", "min-above-max", _text(_HIP_JOINT, "hip:              {lower_rad: 2.50, upper_rad: 2.00, torque_limit_nm: 100.0,"),
-        "sim.model.joints.hip.lower_rad", "2.5 must be below upper_rad 2.0"),
+    Bad("minmax-sim-joint", "min-above-max", _text(_HIP_JOINT, "hip:   {lower_rad: 2.50, upper_rad: 2.00, torque_limit_nm: 100.0,"),
+        "hardware.joints.hip.lower_rad", "2.5 must be below upper_rad 2.0"),
     Bad("minmax-patient-lean", "min-above-max", _set("sim.gait.lean_x_max", 0.3),
         "sim.gait.lean_x_max", "must not be below lean_x_min 0.35"),
     # --- beyond the hard bounds of the hardware / of the safety case ------------------------
@@ -194,43 +193,43 @@ BAD: list[Bad] = [
         "controller.safety.hold_torque_nm", "must not exceed envelope.max_torque_nm 100.0"),
     Bad("bound-envelope-torque", "beyond-bound", _text(_TORQUE, "    max_torque_nm: 250.0"),
         "controller.envelope.max_torque_nm", "250.0 is above the maximum 200.0"),
-    Bad("bound-motor-torque", "beyond-bound", _text(_HIP_JOINT, "hip:              {lower_rad: -0.50, upper_rad: 2.00, torque_limit_nm: 500.0,"),
-        "sim.model.joints.hip.torque_limit_nm", "500.0 is above the maximum 400.0"),
+    Bad("bound-motor-torque", "beyond-bound", _text(_HIP_JOINT, "hip:   {lower_rad: -0.50, upper_rad: 2.00, torque_limit_nm: 500.0,"),
+        "hardware.joints.hip.torque_limit_nm", "500.0 is above the maximum 400.0"),
     Bad("bound-zero-swing-duration", "beyond-bound", _text("    duration_scaled: 3.9037", "    duration_scaled: 0"),
         "controller.swing.duration_scaled", "0 is below the minimum 1"),
     Bad("bound-zero-physics-rate", "beyond-bound", _text("    rate_hz: 250", "    rate_hz: 0"),
         "sim.physics.rate_hz", "0 is below the minimum 200"),
-    Bad("bound-joint-beyond-pi", "beyond-bound", _text("    hip_max_rad: 2.00", "    hip_max_rad: 3.5"),
-        "controller.legs.hip_max_rad", "3.5 is above the maximum"),
+    Bad("bound-joint-beyond-pi", "beyond-bound", _set("hardware.joints.hip.upper_rad", 3.5),
+        "hardware.joints.hip.upper_rad", "3.5 is above the maximum"),
     # --- non-finite numbers -------------------------------------------------------------------
     Bad("nonfinite-inf-torque", "non-finite", _text(_TORQUE, "    max_torque_nm: .inf"),
         "controller.envelope.max_torque_nm", "expected a finite number, got inf"),
     Bad("nonfinite-nan-step", "non-finite", _text("    max_fraction: 0.2697", "    max_fraction: .nan"),
         "controller.step.max_fraction", "expected a finite number, got nan"),
-    Bad("nonfinite-minus-inf-limit", "non-finite", _text("    hip_min_rad: -0.50", "    hip_min_rad: -.inf"),
-        "controller.legs.hip_min_rad", "expected a finite number, got -inf"),
+    Bad("nonfinite-minus-inf-limit", "non-finite", _set("hardware.joints.hip.lower_rad", float("-inf")),
+        "hardware.joints.hip.lower_rad", "expected a finite number, got -inf"),
     Bad("nonfinite-overflow", "non-finite", _text("    max_velocity_rad_s: 4.0", "    max_velocity_rad_s: 1e400"),
         "controller.envelope.max_velocity_rad_s", "expected a finite number, got inf"),
     Bad("nonfinite-nan-for-int", "non-finite", _text(_CTT, "  command_timeout_ticks: .nan"),
         "nodes.command_timeout_ticks", "expected an integer, got nan"),
     # --- unknown keys: most likely typos; never ignored (an ignored `node:` would drop the watchdogs)
     Bad("unknown-top-level-typo", "unknown-key", _text("\nnodes:\n", "\nnode:\n"), "node",
-        "unknown key; expected one of: bus, controller, nodes, protocol, schema_version, sim (did you mean 'nodes'?)"),
+        "unknown key; expected one of: bus, controller, hardware, nodes, protocol, schema_version, sim (did you mean 'nodes'?)"),
     Bad("unknown-nested-typo", "unknown-key", _text(_CTT, "  command_timout_ticks: 3"),
         "nodes.command_timout_ticks", "unknown key; expected one of: command_timeout_ticks, faults, "
         "heartbeat_timeout_ms, status_interval_s, supply_voltage_v (did you mean 'command_timeout_ticks'?)"),
     Bad("unknown-envelope-typo", "unknown-key", _text(_TORQUE, "    max_torque_n: 100.0"),
         "controller.envelope.max_torque_n", "(did you mean 'max_torque_nm'?)"),
-    Bad("unknown-extra-flow-key", "unknown-key", _text(_HIP_JOINT, "hip:              {lower_rad: -0.50, upper_rad: 2.00, torque_limit_nm: 100.0, gear: 3,"),
-        "sim.model.joints.hip.gear", "unknown key"),
+    Bad("unknown-extra-flow-key", "unknown-key", _text(_HIP_JOINT, "hip:   {lower_rad: -0.50, upper_rad: 2.00, torque_limit_nm: 100.0, gear: 3,"),
+        "hardware.joints.hip.gear", "unknown key"),
     # --- duplicate keys: the second value is never silently used ------------------------------
     Bad("duplicate-top-level", "duplicate-key",
         DEFAULT + "nodes: {command_timeout_ticks: 5, heartbeat_timeout_ms: 1000}\n", "nodes",
         f"duplicate key (line {DEFAULT.count(chr(10)) + 1}; first defined on line {_line_of(chr(10) + 'nodes:') + 1})"),
     Bad("duplicate-nested", "duplicate-key", _text(_CTT, _CTT + "\n  command_timeout_ticks: 5"),
         "nodes.command_timeout_ticks", f"duplicate key (line {_line_of(_CTT) + 1}; first defined on line {_line_of(_CTT)})"),
-    Bad("duplicate-in-flow-mapping", "duplicate-key", _text(_HIP_JOINT, "hip:              {lower_rad: -0.50, upper_rad: 2.00, torque_limit_nm: 100.0, torque_limit_nm: 400.0,"),
-        "sim.model.joints.hip.torque_limit_nm", "duplicate key"),
+    Bad("duplicate-in-flow-mapping", "duplicate-key", _text(_HIP_JOINT, "hip:   {lower_rad: -0.50, upper_rad: 2.00, torque_limit_nm: 100.0, torque_limit_nm: 400.0,"),
+        "hardware.joints.hip.torque_limit_nm", "duplicate key"),
     # --- python tags: rejected before anything is constructed ---------------------------------
     _tag("tag-python-apply-os-system", _CTT, "  command_timeout_ticks: !!python/object/apply:os.system ['true']",
          "!!python/object/apply:os.system"),
@@ -329,6 +328,8 @@ def _schema_fields(cls: type, path: str = "") -> typing.Iterator[tuple[str, data
     """(dotted name, field, type) of every field of the schema tree; ``*`` for a named entry."""
     hints = typing.get_type_hints(cls)
     for field in dataclasses.fields(cls):
+        if field.metadata.get(DERIVED_KEY):  # not a key of its section (the root sets it)
+            continue
         dotted = f"{path}.{field.name}" if path else field.name
         tp = hints[field.name]
         yield dotted, field, tp
@@ -343,9 +344,11 @@ def _schema_fields(cls: type, path: str = "") -> typing.Iterator[tuple[str, data
 
 #: Every field that may be left out of a file. None of them is a safety parameter: the three sections
 #: are absent where they do not exist (on the robot: sim and nodes) and are then refused by the
-#: command that needs them; the rest is fault injection for tests and the status-line rate.
+#: command that needs them; hardware may be left out only with neither the controller nor the sim
+#: (its own check); the rest is fault injection for tests and the status-line rate.
 OPTIONAL_FIELDS = {
     "bus.receive_own_messages",
+    "hardware",
     "controller",
     "sim",
     "nodes",
@@ -385,7 +388,7 @@ def _required_leaves(prefixes: tuple[str, ...]) -> list[str]:
 SAFETY_KEYS = _required_leaves(
     ("schema_version", "bus.", "protocol.", "controller.legs.", "controller.step.", "controller.envelope.",
      "controller.safety.",
-     "nodes.", "sim.model.joints.hip.", "sim.model.joints.knee.")
+     "nodes.", "hardware.joints.hip.", "hardware.joints.knee.")
 )
 
 
@@ -393,7 +396,7 @@ def test_safety_keys_are_found():
     assert "nodes.command_timeout_ticks" in SAFETY_KEYS
     assert "controller.envelope.max_torque_nm" in SAFETY_KEYS
     assert "controller.safety.lost_ticks" in SAFETY_KEYS
-    assert "sim.model.joints.knee.torque_limit_nm" in SAFETY_KEYS
+    assert "hardware.joints.knee.torque_limit_nm" in SAFETY_KEYS
     assert len(SAFETY_KEYS) >= 25
 
 

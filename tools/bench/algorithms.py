@@ -43,8 +43,8 @@ def _per_call_us(fn: Callable[[], None], calls: int, repeats: int) -> dict[str, 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     from controller.dmp import Dmp, reference_rollout
-    from controller.factory import swing_duration_s
-    from controller.kinematics import Leg, forward, inverse
+    from controller.factory import leg as make_leg, swing_duration_s
+    from controller.kinematics import forward, inverse
     from controller.pi2 import pi2_update
     from controller.swing import load_swing
 
@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     def naive_swing() -> None:
         reference_rollout(weights, np.zeros(2), goal, tau, dt, substeps, ticks_per_swing)
 
-    leg = Leg(cfg.legs.thigh_m, cfg.legs.shank_m, cfg.legs.hip_min_rad, cfg.legs.hip_max_rad, cfg.legs.knee_min_rad, cfg.legs.knee_max_rad)
+    leg = make_leg(cfg)
     rng = np.random.default_rng(0)
     # Reachable swing-ankle targets: forward kinematics of joint angles a swing uses.
     targets = [forward(leg, float(h), float(k)) for h, k in zip(rng.uniform(-0.3, 0.6, 256), rng.uniform(0.05, 1.0, 256))]

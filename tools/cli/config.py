@@ -44,7 +44,7 @@ def run_check(args: argparse.Namespace) -> int:
         if args.json:  # the answer on stdout as well: a JSON object saying what is wrong (the one line on stderr too)
             print_json({"file": str(args.file), "valid": False, "error": str(exc), "key": exc.key, "line": exc.line})
         raise
-    sections = {name: getattr(cfg, name) is not None for name in ("protocol", "controller", "sim", "nodes")}
+    sections = {name: getattr(cfg, name) is not None for name in ("protocol", "hardware", "controller", "sim", "nodes")}
     result = {"file": str(args.file), "valid": True, "schema_version": SCHEMA_VERSION, "hash": config_hash(cfg),
               "bus": f"{cfg.bus.interface}:{cfg.bus.channel}", "sections": sections}
     if cfg.controller is not None:
@@ -89,7 +89,7 @@ def run_body(args: argparse.Namespace) -> int:
     if base.sim is None:
         raise ConfigError("has no sim section: the body is estimated with the simulation's anthropometric model "
                           "(leave out --config to use the packaged one)", key="sim", source=args.config)
-    stick_m = args.stick_length or base.sim.model.sticks.length_m * args.height / base.sim.model.patient.height_m
+    stick_m = args.stick_length or base.hardware.sticks.length_m * args.height / base.sim.model.patient.height_m
     try:
         overrides = estimated_body(base, mass_kg=args.mass, height_m=args.height, stick_m=stick_m, source="aider-exo config body")
         patient = with_overrides(base, overrides, source="aider-exo config body")  # its checks too

@@ -83,8 +83,8 @@ class ViewModel:
                  max_delta_counter: int = 2, history_s: float = 10.0) -> None:
         self.catalog = catalog
         self.receiver = Receiver(Codec(catalog), max_delta_counter=max_delta_counter)
-        self.estimator = StateEstimator(controller_cfg.body, controller_cfg.legs)
-        self._command_estimator = StateEstimator(controller_cfg.body, controller_cfg.legs)  # its own elbow state
+        self.estimator = StateEstimator(controller_cfg.body, controller_cfg.legs, controller_cfg.hardware)
+        self._command_estimator = StateEstimator(controller_cfg.body, controller_cfg.legs, controller_cfg.hardware)  # its own elbow state
         self.bitrate = bitrate_bit_s
         self.joint_nodes = catalog.joint_nodes
         self.nodes = {n: NodeHealth() for n in self.joint_nodes}
