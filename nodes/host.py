@@ -1,7 +1,8 @@
-"""One process hosting the simulated HHEA and the four node boards that drive it over CAN.
+"""The four node boards that drive the simulated HHEA over CAN, in one process.
 
-The host owns the bus connection, the simulation (the PyBullet world and the patient inside it)
-and four :class:`~nodes.firmware.NodeFirmware`. It speaks only CAN through :mod:`protocol`:
+The host owns the bus connection and four :class:`~nodes.firmware.NodeFirmware`; what they drive
+and measure is the simulation's :class:`~sim.plant.Plant` (the PyBullet world and the patient
+inside it), which the host ticks. It speaks only CAN through :mod:`protocol`:
 
 * every received frame goes through one :class:`~protocol.e2e.Receiver` (CRC, counter and length
   errors are counted and ignored), then to the firmware it concerns: NMT commands, joint
@@ -45,13 +46,10 @@ from protocol.clock import MAX_STALLS, STALL_NS, TICK_MS, TICK_NS, Clock, Monoto
 from protocol.codec import Codec, Decoded
 from protocol.commands import JointCommand
 from protocol.e2e import Receiver, Transmitter
-from protocol.enums import WALKING, DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
+from protocol.enums import WALKING, DriveState, EmcyCode, GaitState, NmtCommand, NmtState, NodeError
 from protocol.errors import EncodeError
-from sim.actuation import Mode
 from sim.model import EXO_JOINTS
-from sim.sensors import Reading
-from sim.walk import Walker, initial_pose
-from sim.world import World
+from sim.plant import Plant
 
 RX_PER_TICK = 200  # real time: queued frames handled before a tick, at most (the controller's own bound)
 SYNC_PHASE_NS = TICK_NS // 2  # real time: the physics tick this long after a SYNC (see the module doc)
@@ -128,16 +126,8 @@ class NodesHost:
         self.stats = HostStats()
         seeds = np.random.SeedSequence(seed).spawn(2)
         self.faults = FaultInjector(cfg.nodes.faults, catalog, np.random.default_rng(seeds[1]))
-        sim_cfg = cfg.sim
-        self.world = World(sim_cfg, gui=gui)
-        try:
-            self.world.place(initial_pose(sim_cfg))
-            self.patient = Walker(self.world, sim_cfg, sim_cfg.gait, np.random.default_rng(seeds[0]), scripted_exo=False)
-            self.reading: Reading = self.patient.start()
-        except Exception:
-            self.world.close()
-            raise
-        joints = sim_cfg.hardware.joints
+        self.plant = Plant(cfg.sim, np.random.default_rng(seeds[0]), gui=gui)
+        joints = cfg.hardware.joints
         self.ports: dict[str, NodePort] = {}
         # The node boards in node-id order drive the exoskeleton's joints in the same order.
         for joint, (node, joint_name) in enumerate(zip(catalog.joint_nodes, EXO_JOINTS, strict=True)):
@@ -163,7 +153,7 @@ class NodesHost:
         }
         self._by_id = {p.node_id: p for p in self.ports.values()}
         self._scale_cache: dict[int, tuple[tuple[float, float, str] | None, ...]] = {}  # constant per message (the DBC)
-        self._lists_of: Reading | None = None  # the reading :meth:`_reading_lists` last converted
+        self._lists_of: Any = None  # the reading :meth:`_reading_lists` last converted
         self._lists: _Lists | None = None
         self.start_ns = self.clock.now_ns()
         self.own_tick = -1  # real time: the node's own tick counter
@@ -171,16 +161,13 @@ class NodesHost:
         self._physics_end_ns = 0  # real time: when the last physics tick ended
         self.sync_locked = False
         self.last_sync_tick = -1
-        # when the HHEA first fell: the controller's last SYNC then (in real time the nodes may
-        # run on after the controller has stopped sending them) and the simulated time
-        self.fall_at: dict[str, Any] | None = None
         self.gait_state: GaitState | None = None
         self.on_sync_hook: Callable[[int], None] | None = None  # after each SYNC's reports (recording the ground truth)
 
     # -- lifecycle -------------------------------------------------------------------------------
 
     def close(self) -> None:
-        self.world.close()
+        self.plant.close()
 
     def now_ms(self) -> float:
         return (self.clock.now_ns() - self.start_ns) / 1e6
@@ -230,7 +217,7 @@ class NodesHost:
             for port in self.ports.values():
                 port.firmware.on_controller_heartbeat(now)
             self.gait_state = GaitState(values.gait_state)
-            self.patient.walking = self.gait_state in WALKING
+            self.plant.walking = self.gait_state in WALKING
         elif family == "NMT_COMMAND":
             targets = self.ports.values() if values.node_id == 0 else [self._by_id.get(values.node_id)]
             now = self._node_time_ms(self.last_sync_tick)
@@ -293,20 +280,13 @@ class NodesHost:
             self._emit(port, self.own_tick)
 
     def _physics_tick(self) -> None:
-        self.reading = self.patient.tick(self.reading)
+        # a fall's tick is the controller's last SYNC (in real time the nodes may run on after the
+        # controller has stopped sending them)
+        self.plant.tick(self.last_sync_tick)
         self.stats.physics_ticks += 1
-        if self.fall_at is None and self.patient.fall:
-            self.fall_at = {"sync_tick": self.last_sync_tick, "sim_time_s": round(self.patient.t, 3)}
 
     def _apply(self, port: NodePort, cmd: JointCommand) -> None:
-        exo = self.world.exo
-        q = float(self.reading.joint_position_rad[port.joint])
-        # The joint interface checks again at its boundary (and counts what it rejects).
-        if cmd.mode == JointMode.TRACK:
-            exo.command(port.joint, Mode.TRACK, cmd.position_rad, cmd.velocity_rad_s, cmd.torque_nm, cmd.torque_limit_nm)
-        else:  # hold and quick stop hold the measured position (latched by the drive loop)
-            q = min(max(q, exo.lower[port.joint]), exo.upper[port.joint])
-            exo.command(port.joint, Mode(int(cmd.mode)), q, 0.0, 0.0, min(cmd.torque_limit_nm, exo.rated[port.joint]))
+        self.plant.drive(port.joint, cmd)
 
     # -- transmit --------------------------------------------------------------------------------
 
@@ -341,7 +321,7 @@ class NodesHost:
                 continue
             stuck = self.faults.stuck_encoder(port.name, tick)
             if stuck and port.stuck_position is None:
-                port.stuck_position = float(self.reading.joint_position_rad[port.joint])
+                port.stuck_position = float(self.plant.reading.joint_position_rad[port.joint])
             elif not stuck:
                 port.stuck_position = None
             for spec in port.cyclic:
@@ -370,8 +350,8 @@ class NodesHost:
     def _reading_lists(self) -> _Lists:
         """This tick's reading with its arrays as lists of Python floats, made once per reading:
         the encoder is three times slower on numpy scalars than on floats (measured)."""
-        if self._lists_of is not self.reading:
-            r = self.reading
+        if self._lists_of is not self.plant.reading:
+            r = self.plant.reading
             self._lists = _Lists(*(getattr(r, name).tolist() for name in _Lists._fields))
             self._lists_of = r
         return self._lists
@@ -467,11 +447,11 @@ class NodesHost:
 
     def status(self) -> dict[str, Any]:
         """Machine-readable state (the one-line status is made from it)."""
-        fall = self.patient.fall
+        patient = self.plant.patient
         return {
             "mode": "lockstep" if self.lockstep else "realtime",
             "sim_mode": self.cfg.sim.mode if self.cfg.sim else None,
-            "sim_time_s": round(self.patient.t, 3),
+            "sim_time_s": round(patient.t, 3),
             "last_sync_tick": self.last_sync_tick,
             "nodes": {
                 p.name: {
@@ -493,9 +473,9 @@ class NodesHost:
             "receiver": self.rx.stats.as_dict(),
             "faults_injected": dict(self.faults.counts),
             "sensor_saturations": dict(self.stats.saturated),
-            "fall": fall,
-            "fall_at": self.fall_at,
-            "patient": self.patient.patient_state(),
+            "fall": patient.fall,
+            "fall_at": self.plant.fall_at,
+            "patient": patient.patient_state(),
         }
 
     def truth(self) -> dict[str, Any]:
@@ -503,9 +483,7 @@ class NodesHost:
         sent on the bus): X_CoM/X_SP by the estimator's contact thresholds of the ``controller``
         section (nan without one), and the fall criterion."""
         body = self.cfg.controller.body if self.cfg.controller is not None else None
-        ratio = (self.patient.x_ratio_truth(body.foot_loaded_n, body.stick_loaded_n, body.min_support_m)
-                 if body is not None else float("nan"))
-        return {"tick": self.last_sync_tick, "t_s": round(self.patient.t, 3), "x_ratio": ratio, "fall": self.patient.fall}
+        return {"tick": self.last_sync_tick, **self.plant.truth(body)}
 
     def status_line(self) -> str:
         s = self.status()
@@ -540,20 +518,3 @@ def running_in_thread(host: NodesHost, poll_s: float = 0.05) -> Iterator[NodesHo
     finally:
         done.set()
         thread.join(timeout=30)
-
-
-class SimTickTimer:
-    """Accumulates the time of the simulation's tick inside ``host`` (benchmarks): the bare
-    simulation measured inside the same run as everything around it."""
-
-    def __init__(self, host: NodesHost, clock: Clock) -> None:
-        self.ns = 0
-        inner = host.patient.tick
-
-        def timed(reading: Reading) -> Reading:
-            start = clock.now_ns()
-            out = inner(reading)
-            self.ns += clock.now_ns() - start
-            return out
-
-        host.patient.tick = timed  # type: ignore[method-assign]  # an instance attribute shadows the method

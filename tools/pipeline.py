@@ -248,13 +248,13 @@ def walk(
             drive(
                 session, outcome, cycles=cycles, max_ticks=int(max_time_s * 1000 / TICK_MS),
                 truth_ratio=(lambda: host.truth()["x_ratio"]) if compare_ratio else None,
-                fallen=lambda: host.patient.fall,
+                fallen=lambda: host.plant.patient.fall,
                 on_tick=None if on_tick is None else (lambda r, s: on_tick(r, s, host)), stall_s=stall_s,
             )
-            outcome.sim_time_s, outcome.patient = host.patient.t, host.patient.patient_state()
+            outcome.sim_time_s, outcome.patient = host.plant.patient.t, host.plant.patient.patient_state()
             # the simulation's own steps (foot contacts): the six arm joints' absolute torques, summed
-            outcome.arm_torques_nm = [st.mean_arm_torque_nm for st in host.patient.steps if st.landed]
-            outcome.intentions_m, outcome.stick_clamps = host.patient.intentions_m(), dict(host.patient.clamps)
+            outcome.arm_torques_nm = [st.mean_arm_torque_nm for st in host.plant.patient.steps if st.landed]
+            outcome.intentions_m, outcome.stick_clamps = host.plant.patient.intentions_m(), dict(host.plant.patient.clamps)
         finally:
             host.close()
     outcome.wall_time_s = (clock.now_ns() - t0) / 1e9

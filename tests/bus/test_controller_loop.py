@@ -118,7 +118,7 @@ def _real_time_walk(cycles: int, channel: str):
             session.operator.start()  # kept until the nodes are up and it stands
             for _ in range(int(default_max_time_s(cycles) * 1000 / TICK_MS)):
                 states.append(session.step().state)
-                fall = host.patient.fall
+                fall = host.plant.patient.fall
                 if fall or states[-1] in (GaitState.FAULT, GaitState.HOLD) or sum(s.landed for s in core.steps) >= 2 * cycles:
                     break
             nodes = host.status()

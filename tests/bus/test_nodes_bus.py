@@ -163,7 +163,7 @@ def test_standing_sensors_are_plausible(ctl):
         got = ctl.sync()
     sticks = sum(v.force_N for n in ("STICK_LEFT", "STICK_RIGHT") for v in values(got, n))
     plantar = sum(v.heel_force_N + v.toe_force_N for n in ("PLANTAR_LEFT", "PLANTAR_RIGHT") for v in values(got, n))
-    weight = ctl.host.world.total_mass * 9.81
+    weight = ctl.host.plant.world.total_mass * 9.81
     assert 0.9 * weight < sticks + plantar < 1.1 * weight
     accel = values(got, "TRUNK_IMU_ACCEL")[0]
     assert np.linalg.norm([accel.specific_force_x_m_s2, accel.specific_force_y_m_s2, accel.specific_force_z_m_s2]) == pytest.approx(9.81, abs=0.3)
@@ -173,12 +173,12 @@ def test_standing_sensors_are_plausible(ctl):
 def test_a_sensor_beyond_its_full_scale_saturates_and_a_non_finite_one_is_not_sent(ctl):
     ctl.start()
     ctl.sync()
-    physics = ctl.host.patient.tick
+    physics = ctl.host.plant.patient.tick
 
     def overloaded(reading):  # the left stick pressed beyond the sensor's 2000 N, the right one's value lost
         return dataclasses.replace(physics(reading), stick_force_n=np.array([5000.0, np.nan]))
 
-    ctl.host.patient.tick = overloaded
+    ctl.host.plant.patient.tick = overloaded
     got = ctl.sync()
     assert [v.force_N for v in values(got, "STICK_LEFT")] == [2000.0]
     assert "STICK_RIGHT" not in got  # the controller sees it missing
@@ -200,7 +200,7 @@ def test_a_commanded_joint_motion_shows_up_in_the_encoder(ctl):
         seen.append(status.position_rad)
     assert status.drive_state == DriveState.TRACK
     assert seen[-1] == pytest.approx(q0 + 0.15, abs=0.01)
-    assert seen[-1] == pytest.approx(ctl.host.world.q[ctl.host.world.joint_index["knee_l"]], abs=4e-4)  # encoder resolution
+    assert seen[-1] == pytest.approx(ctl.host.plant.world.q[ctl.host.plant.world.joint_index["knee_l"]], abs=4e-4)  # encoder resolution
     # it moved the way it was told (then gives 1-3 mrad a tick, within the firmware's stiffness, while the
     # standing patient rebalances over the bent leg)
     assert all(b >= a - 3e-3 for a, b in zip(seen, seen[1:]))
@@ -211,7 +211,7 @@ def test_watchdog_quick_stops_within_4_ticks_of_the_last_command_sends_emcy_and_
     for _ in range(10):
         ctl.sync()
     last_command_tick = ctl.tick  # the commands sent after this SYNC are the last
-    q = ctl.host.world.q[ctl.host.world._exo_idx].copy()
+    q = ctl.host.plant.world.q[ctl.host.plant.world._exo_idx].copy()
     fault_tick, emcys = None, []
     for _ in range(30):
         got = ctl.sync(commands=False)
@@ -224,8 +224,8 @@ def test_watchdog_quick_stops_within_4_ticks_of_the_last_command_sends_emcy_and_
     assert all(code == EmcyCode.COMMAND_TIMEOUT and t == fault_tick for t, _, code in emcys)
     assert values(got, "JOINT_STATUS_RK")[0].error_code == NodeError.COMMAND_TIMEOUT
     # Quick stop and stay: the joints hold where they were, and the HHEA still stands.
-    assert np.abs(ctl.host.world.q[ctl.host.world._exo_idx] - q).max() < 0.02
-    assert ctl.host.patient.fall is None
+    assert np.abs(ctl.host.plant.world.q[ctl.host.plant.world._exo_idx] - q).max() < 0.02
+    assert ctl.host.plant.patient.fall is None
 
 
 def test_lost_controller_heartbeat_faults_the_nodes(ctl):
@@ -273,7 +273,7 @@ def test_commands_beyond_the_joint_limits_are_clamped_and_reported(ctl):
     got = ctl.sync(commands=False)
     assert [v.emcy_code for v in values(got, "EMCY_LK")] == [EmcyCode.POSITION_LIMIT]
     assert values(got, "EMCY_LK")[0].error_register == 0
-    assert ctl.host.world.exo.target[1] == pytest.approx(2.0)
+    assert ctl.host.plant.world.exo.target[1] == pytest.approx(2.0)
     assert ctl.host.ports["LEFT_KNEE"].firmware.clamped == 1
 
 
@@ -353,7 +353,7 @@ def test_fault_freeze_resends_stale_frames_and_stops_applying_commands(request):
     c, ticks = run_with(request, {"d": {"kind": "freeze", "node": "LEFT_KNEE", "start_tick": 5, "end_tick": 10}}, ticks=5)
     last = ticks[-1]["JOINT_STATUS_LK"][0][0].data
     heartbeat = ticks[2]["HEARTBEAT_LK"][0][0].data
-    q_before = c.host.world.exo.target[1]
+    q_before = c.host.plant.world.exo.target[1]
     frozen = [c.sync(track={"LK": 0.6}) for _ in range(5)]
     for got in frozen:  # the tick-4 frame again, and again: same counter, same CRC
         (msg, result), = got["JOINT_STATUS_LK"]
@@ -361,7 +361,7 @@ def test_fault_freeze_resends_stale_frames_and_stops_applying_commands(request):
         if c.tick % 5 == 2:  # its heartbeat is frozen too: tick 2's bytes again
             assert [m.data for m, _ in got["HEARTBEAT_LK"]] == [heartbeat]
     assert c.rx.stats.rejected[RejectReason.REPEATED] == 5 * 2 + 1  # status and plantar, ticks 5..9; a heartbeat
-    assert c.host.world.exo.target[1] == q_before  # the 0.6 rad commands were not applied
+    assert c.host.plant.world.exo.target[1] == q_before  # the 0.6 rad commands were not applied
     after = c.sync(track={"LK": 0.6})
     assert len(values(after, "JOINT_STATUS_LK")) == 1  # counters resume where they stopped
 
@@ -372,7 +372,7 @@ def test_fault_stuck_encoder(request):
     for _ in range(25):
         got = c.sync(track={"RK": q0 + 0.1})
     assert values(got, "JOINT_STATUS_RK")[0].position_rad == pytest.approx(q0, abs=2e-3)  # the encoder says it did not move
-    assert c.host.world.q[c.host.world.joint_index["knee_r"]] == pytest.approx(q0 + 0.1, abs=0.02)  # the joint did
+    assert c.host.plant.world.q[c.host.plant.world.joint_index["knee_r"]] == pytest.approx(q0 + 0.1, abs=0.02)  # the joint did
 
 
 def test_fault_reboot(request):
@@ -588,7 +588,7 @@ def test_any_controller_frame_sequence_is_handled_without_an_exception():
     )
     ctl = ScriptedController("nodes-fuzz")
     try:
-        exo = ctl.host.world.exo
+        exo = ctl.host.plant.world.exo
 
         @given(st.lists(frame, min_size=1, max_size=30))
         @settings(max_examples=60, suppress_health_check=[HealthCheck.too_slow])
@@ -624,7 +624,7 @@ def test_the_status_says_where_the_patient_is_in_its_gait(ctl):
     standing = ctl.host.status()["patient"]
     assert standing["phase"] == "settle" and "lift_window_m" not in standing
     ctl.gait_state = GaitState.DOUBLE_SUPPORT
-    walker, shifting = ctl.host.patient, []
+    walker, shifting = ctl.host.plant.patient, []
     for _ in range(60):
         ctl.sync()
         patient = walker.patient
@@ -650,8 +650,8 @@ def test_a_fall_is_reported_with_the_sync_tick_and_time_it_happened(ctl):
         ctl.sync(commands=False)
         for j in JOINTS:
             ctl.command(j, JointMode.DISABLE, 0.0, 0.0)
-        if fell_at is None and ctl.host.patient.fall:
-            fell_at = (ctl.tick, round(ctl.host.patient.t, 3))
+        if fell_at is None and ctl.host.plant.patient.fall:
+            fell_at = (ctl.tick, round(ctl.host.plant.patient.t, 3))
     status = ctl.host.status()
     assert status["fall"] and fell_at is not None, status["fall"]
     assert status["fall_at"] == {"sync_tick": fell_at[0], "sim_time_s": fell_at[1]}

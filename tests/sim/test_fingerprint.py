@@ -24,7 +24,7 @@ def walk_fingerprint(*, cycles: int, seed: int) -> tuple[str, int]:
         def on_tick(result, session, host) -> None:
             while (msg := sniffer.recv(0)) is not None:
                 digest.update(msg.arbitration_id.to_bytes(4, "little") + bytes([msg.dlc]) + bytes(msg.data))
-            world = host.world
+            world = host.plant.world
             for state in (world.q, world.qd, world.link_positions()):
                 digest.update(state.tobytes())
 

@@ -274,9 +274,9 @@ def _fresh_ticks(rig: FaultRig, ticks: int) -> np.ndarray:
     nodes' state of that tick than that of the tick before (a swing moves every joint)."""
     fresh = np.zeros(4, dtype=int)
     for _ in range(ticks):
-        before = rig.host.reading.joint_position_rad.copy()
+        before = rig.host.plant.reading.joint_position_rad.copy()
         result = rig.step()
-        now, measured = rig.host.reading.joint_position_rad, np.array(result.measurements.joint_position_rad)
+        now, measured = rig.host.plant.reading.joint_position_rad, np.array(result.measurements.joint_position_rad)
         fresh += np.abs(measured - now) < np.abs(measured - before)
     return fresh
 
@@ -524,7 +524,7 @@ def test_F18_a_push_that_topples_the_hhea_is_a_fall():
     """A 600 N backward push on the trunk for 0.3 s in double support: the HHEA falls; the trunk's
     tilt beyond fall_tilt_rad for fall_ticks ticks is a FALL, FAULT, and the roll-out ends."""
     with at("stance") as rig:
-        world = rig.host.world
+        world = rig.host.plant.world
         step = world.step
         pushing = {"steps": int(0.3 / world.dt)}
 
@@ -539,7 +539,7 @@ def test_F18_a_push_that_topples_the_hhea_is_a_fall():
         t0 = rig.tick + 1
         rig.run(150)
         expect_stop(rig, t0, FAULT, K.FALL, detect=150)
-        assert rig.host.patient.fall is not None  # the simulation's ground truth agrees
+        assert rig.host.plant.patient.fall is not None  # the simulation's ground truth agrees
 
 
 def test_F26_a_wall_clock_jump_changes_nothing(monkeypatch):

@@ -47,7 +47,7 @@ def test_a_closed_rig_is_freed_at_its_last_reference_not_by_the_garbage_collecto
             rig.operator.start()
             rig.run(20)
             assert rig.hardware.codec is rig.host.codec is rig.oracle.codec  # one stateless codec, not one per part
-            refs = [weakref.ref(o) for o in (rig, rig.loop, rig.loop.stats, rig.host, rig.host.world, rig.core, rig.oracle)]
+            refs = [weakref.ref(o) for o in (rig, rig.loop, rig.loop.stats, rig.host, rig.host.plant.world, rig.core, rig.oracle)]
         del rig
         assert [r() for r in refs] == [None] * len(refs)
     finally:

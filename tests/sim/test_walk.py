@@ -147,7 +147,7 @@ def test_a_step_as_placed_is_the_feet_spacing_measured_when_the_next_swing_start
     def on_tick(result, session, host):
         steps = session.core.steps
         if result.state in SWINGS and steps and steps[-1].swing_tick == result.tick:
-            x = {side: float(host.patient.ankle_xy(side)[0]) for side in "lr"}
+            x = {side: float(host.plant.patient.ankle_xy(side)[0]) for side in "lr"}
             truth[result.tick] = {"l": x["l"] - x["r"], "r": x["r"] - x["l"]}
 
     steady = with_overrides(BASE, {"sim.patient.intention.regime": "steady"})  # one fixed length fits a steady patient

@@ -11,7 +11,7 @@ ticks in which it walks (DOUBLE_SUPPORT, SWING_LEFT, SWING_RIGHT), not the start
    encoding) against the four emulated nodes and the simulation. The controller's own work per
    tick excludes the time the nodes take; the pipeline's walking ticks per second are set beside
    the bare physics (PyBullet's step, :class:`sim.world.PhysicsTimer`) and the bare simulation
-   tick (:class:`nodes.host.SimTickTimer`), both timed over the same ticks; ``--repeats`` walks,
+   tick (:class:`sim.plant.PlantTickTimer`), both timed over the same ticks; ``--repeats`` walks,
    each figure their median.
 2. Real time: the controller's loop on absolute 20 ms deadlines walks ``--realtime-cycles`` with
    the nodes in real time in a thread of the same process (the nodes' physics competes with the
@@ -94,7 +94,8 @@ def _lockstep(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
     from controller.hardware import CanHardware
     from controller.loop import LockstepLoop
     from controller.session import Session
-    from nodes.host import NodesHost, SimTickTimer
+    from nodes.host import NodesHost
+    from sim.plant import PlantTickTimer
     from sim.world import PhysicsTimer
     from tools.pipeline import WalkOutcome, drive, walk_config
 
@@ -108,8 +109,8 @@ def _lockstep(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
             virtual_bus(cfg.bus.channel) as ctl_bus:
         host = NodesHost(cfg, node_bus, lockstep=True, seed=SEED, clock=clock)
         try:
-            sim = SimTickTimer(host, clock)
-            physics = PhysicsTimer(host.patient.world, clock)
+            sim = PlantTickTimer(host.plant, clock)
+            physics = PhysicsTimer(host.plant.patient.world, clock)
             host.boot()
             core = ControllerCore(cfg.controller)
             loop = LockstepLoop(core, CanHardware(cfg.controller, ctl_bus, pump=lambda: host.poll(0.0), clock=clock,
@@ -124,7 +125,7 @@ def _lockstep(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
                 physics_ns.append(physics.ns)
 
             start = clock.now_ns()
-            drive(session, outcome, cycles=cycles, max_ticks=max_ticks, fallen=lambda: host.patient.fall, on_tick=on_tick)
+            drive(session, outcome, cycles=cycles, max_ticks=max_ticks, fallen=lambda: host.plant.patient.fall, on_tick=on_tick)
             physics_ticks = host.stats.physics_ticks
         finally:
             host.close()
@@ -188,7 +189,7 @@ def _realtime(cfg: Any, cycles: int, max_ticks: int) -> dict[str, Any]:
                 loop = RealtimeLoop(core, CanHardware(cfg.controller, ctl_bus, max_delta_counter=cfg.protocol.max_delta_counter))
                 session = Session(loop)
                 outcome = WalkOutcome(mode=MODE, seed=SEED, policy=core.policy.mode, steps=core.steps)
-                drive(session, outcome, cycles=cycles, max_ticks=max_ticks, fallen=lambda: host.patient.fall,
+                drive(session, outcome, cycles=cycles, max_ticks=max_ticks, fallen=lambda: host.plant.patient.fall,
                       on_tick=lambda result, _session: states.append(result.state.name))
             nodes = host.status()
         finally:

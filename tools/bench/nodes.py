@@ -29,7 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _run_mode(cfg: Any, mode: str, ticks: int) -> dict[str, Any]:
-    from nodes.host import NodesHost, SimTickTimer  # PyBullet loads only when this benchmark runs
+    from nodes.host import NodesHost
+    from sim.plant import PlantTickTimer  # PyBullet loads only when this benchmark runs
     from protocol.codec import Codec, Decoded
     from protocol.e2e import Receiver, Transmitter
     from protocol.enums import GaitState, JointMode, NmtCommand
@@ -42,7 +43,7 @@ def _run_mode(cfg: Any, mode: str, ticks: int) -> dict[str, Any]:
             virtual_bus(cfg.bus.channel) as node_bus:
         host = NodesHost(cfg, node_bus, lockstep=True, seed=0, clock=clock, codec=codec)
         try:
-            sim = SimTickTimer(host, clock)
+            sim = PlantTickTimer(host.plant, clock)
             host_ns = 0
 
             def poll() -> None:

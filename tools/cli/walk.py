@@ -165,8 +165,8 @@ def run(args: argparse.Namespace) -> int:
             def on_tick(result: Any, session: Any, host: Any) -> None:
                 watched(result, session)
                 if recorder is not None:
-                    x = float(host.world.link_frame("trunk")[0][0])
-                    recorder.maybe_capture(host.world.client, host.patient.t, camera.follow(x))
+                    x = float(host.plant.world.link_frame("trunk")[0][0])
+                    recorder.maybe_capture(host.plant.world.client, host.plant.patient.t, camera.follow(x))
 
             outcome = walk(cfg, cycles=args.steps, seed=args.seed, mode=args.mode, policy=policy,
                            max_time_s=args.max_time, on_tick=on_tick, telemetry=telemetry, channel=channel)

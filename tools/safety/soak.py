@@ -204,7 +204,7 @@ def _episode(cfg: Config, seed: int, ticks: int, faults_per_min: float, reset_af
                 rig.operator.start()
             elif before == GaitState.HOLD:
                 rig.operator.start()
-            if rig.host.patient.fall is not None:
+            if rig.host.plant.patient.fall is not None:
                 report.falls += 1
                 break
         report.ticks += rig.oracle.ticks
