@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 from .hardware_schema import HardwareConfig
 from .loader import fail, field_spec
@@ -12,6 +12,11 @@ from .loader import fail, field_spec
 @dataclass(frozen=True, kw_only=True)
 class LegConfig:
     """The exoskeleton leg as set to the patient (from the fitting; its joints' ranges: ``hardware.joints``)."""
+
+    MOVED_KEYS: ClassVar[dict[str, str]] = {
+        "hip_min_rad": "hardware.joints.hip.lower_rad", "hip_max_rad": "hardware.joints.hip.upper_rad",
+        "knee_min_rad": "hardware.joints.knee.lower_rad", "knee_max_rad": "hardware.joints.knee.upper_rad",
+    }
 
     thigh_m: float = field_spec(doc="Hip to knee joint distance.", unit="m", min=0.2, max=0.7)
     shank_m: float = field_spec(doc="Knee to ankle joint distance.", unit="m", min=0.2, max=0.7)
@@ -100,6 +105,12 @@ class BodyConfig:
     origin midway between the hip joints. The patient's arm is a 2-DOF shoulder and an elbow whose
     axis is the forearm's y axis; the stick is rigid with the forearm (a forearm crutch's cuff).
     Masses include the exoskeleton's segments."""
+
+    MOVED_KEYS: ClassVar[dict[str, str]] = {
+        "tip_radius_m": "hardware.sticks.tip_radius_m", "foot_heel_m": "hardware.foot.heel_back_m",
+        "foot_toe_m": "hardware.foot.toe_front_m", "foot_half_width_m": "hardware.foot.half_width_m",
+        "ankle_stiffness_nm_rad": "hardware.joints.ankle.stiffness_nm_rad", "ankle_rest_rad": "hardware.joints.ankle.rest_rad",
+    }
 
     hip_half_width_m: float = field_spec(doc="Hip joint from the trunk midline.", unit="m", min=0.03, max=0.3)
     shoulder_xyz_m: tuple[float, float, float] = field_spec(

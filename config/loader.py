@@ -730,6 +730,9 @@ def build(cls: type[T], data: Any, path: str = "") -> T:
 
     def unknown_key_error() -> ConfigError:
         bad = unknown[0]
+        moved = getattr(cls, "MOVED_KEYS", {}).get(_key_segment(bad))
+        if moved is not None:  # a key of an earlier file format, now elsewhere
+            return ConfigError(f"this key is now {moved}", key=_join(path, _key_segment(bad)))
         message = f"unknown key; expected one of: {', '.join(sorted(names))}"
         close = difflib.get_close_matches(_key_segment(bad), names, n=1)
         if close:

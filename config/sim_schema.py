@@ -9,7 +9,7 @@ of gyration about the centre of mass as fractions of the segment length.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 from .hardware_schema import HardwareConfig, JointConfig
 from .loader import fail, field_spec
@@ -72,6 +72,8 @@ class ExoskeletonConfig:
 class ArmJointsConfig:
     """The patient's arm joints (the exoskeleton's: ``hardware.joints``)."""
 
+    MOVED_KEYS: ClassVar[dict[str, str]] = {"hip": "hardware.joints.hip", "knee": "hardware.joints.knee", "ankle": "hardware.joints.ankle"}
+
     shoulder_flexion: JointConfig = field_spec(doc="Patient's shoulder flexion (+, arm forward).")
     shoulder_abduction: JointConfig = field_spec(doc="Patient's shoulder abduction (+, arm out to the side).")
     elbow: JointConfig = field_spec(doc="Patient's elbow flexion (+).")
@@ -81,6 +83,8 @@ class ArmJointsConfig:
 class ModelConfig:
     """The patient's body and arms, and the exoskeleton's masses (its joints, feet and the sticks:
     the top-level ``hardware`` section, which the controller reads too)."""
+
+    MOVED_KEYS: ClassVar[dict[str, str]] = {"sticks": "hardware.sticks", "foot": "hardware.foot"}
 
     patient: PatientBodyConfig = field_spec(doc="Anthropometrics of the patient.")
     exoskeleton: ExoskeletonConfig = field_spec(doc="Masses of the exoskeleton parts.")

@@ -656,3 +656,19 @@ def test_a_file_with_a_controller_needs_the_hardware_section_and_never_has_it_un
         parse_config(yaml.safe_dump(data))
     bare = {k: v for k, v in without.items() if k not in ("controller", "sim")}
     assert parse_config(yaml.safe_dump(bare)).hardware is None  # a bus-only file (buscheck, record) needs none
+
+
+@pytest.mark.parametrize(("section", "key", "now"), [
+    ("controller.legs", "hip_min_rad", "hardware.joints.hip.lower_rad"),
+    ("controller.body", "foot_half_width_m", "hardware.foot.half_width_m"),
+    ("sim.model", "sticks", "hardware.sticks"),
+    ("sim.model.joints", "ankle", "hardware.joints.ankle"),
+])
+def test_a_key_of_the_earlier_format_says_where_it_is_now(section, key, now):
+    data = config_to_dict(load_config(default_config_path()))
+    node = data
+    for part in section.split("."):
+        node = node[part]
+    node[key] = 0.1
+    with pytest.raises(ConfigError, match=rf"{section}\.{key}: this key is now {now}$"):
+        parse_config(yaml.safe_dump(data))
