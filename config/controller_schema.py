@@ -265,6 +265,8 @@ class CompensationConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class ControllerConfig:
+    MOVED_KEYS: ClassVar[dict[str, str]] = {"patients_dir": "controller.learned_dir"}
+
     legs: LegConfig = field_spec(doc="Exoskeleton leg geometry and joint limits.")
     swing: SwingConfig = field_spec(doc="The DMP swing generator.")
     step: StepConfig = field_spec(doc="Step length and its safety clamp.")
@@ -275,7 +277,7 @@ class ControllerConfig:
     gait: GaitConfig = field_spec(doc="The legs through the gait cycle.")
     balance: BalanceConfig = field_spec(doc="The stance legs' torque feed-forward.")
     compensation: CompensationConfig = field_spec(doc="The step-length compensation's theta without a patient file.")
-    patients_dir: str = field_spec(doc="Directory of the learned parameters per patient, <patients_dir>/<NAME>.json (relative: to the folder of the configuration file).")
+    learned_dir: str = field_spec(doc="Directory of the learned parameters per patient, <learned_dir>/<NAME>.json (relative: to the folder of the configuration file).")
     hardware: HardwareConfig | None = field_spec(doc="The exoskeleton and the sticks: the top-level hardware section.", derived=True)
 
     def validate(self) -> None:

@@ -7,7 +7,7 @@ the exoskeleton's per-patient set-up (the controller's body model) fits them. Ev
 the base configuration's. :func:`tools.population.patient_config` turns one into a configuration;
 docs/POPULATION.md says what each field changes and where the population's distributions come from.
 
-Not to be confused with ``controller.patients_dir``: the learned theta of a real patient.
+Not to be confused with ``controller.learned_dir``: the learned theta of a real patient.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ from controller.policy import StepPolicy
 from protocol.clock import TICK_S
 
 if TYPE_CHECKING:
-    from controller.patients import PatientSaver
+    from controller.learned import LearnedSaver
 
 
 def leg(cfg: ControllerConfig) -> Leg:
@@ -104,8 +104,8 @@ def learner(cfg: ControllerConfig, rng: np.random.Generator) -> Pi2Learner:
 
 def step_policy(
     cfg: ControllerConfig, *, fixed_m: float | None = None, learn: bool = False, patient: str | None = None,
-    patients_dir: str | None = None, rng: np.random.Generator | None = None,
-) -> tuple[StepPolicy, PatientSaver | None]:
+    learned_dir: str | None = None, rng: np.random.Generator | None = None,
+) -> tuple[StepPolicy, LearnedSaver | None]:
     """Where every swing's step length comes from, and the patient-file writer to close at the end
     (None when nothing is saved):
 
@@ -114,31 +114,31 @@ def step_policy(
       start), its file rewritten after every roll-out when a ``patient`` is named (so a restart
       loses no finished roll-out);
     * otherwise the compensation with the patient's learned theta, or the configured one without
-      ``patient``; a named patient without a file is a :class:`PatientError` naming the path (only
-      learning creates a patient's file).
+      ``patient``; a named patient without a file is a :class:`LearnedError` naming the path (only
+      learning creates a patient's learned file).
     """
-    from controller.patients import PatientError, PatientSaver, load_patient, patient_path, restore_learner
+    from controller.learned import LearnedError, LearnedSaver, load_learned, learned_path, restore_learner
 
     bounds = step_bounds(cfg)
-    directory = patients_dir if patients_dir is not None else os.path.expanduser(cfg.patients_dir)
+    directory = learned_dir if learned_dir is not None else os.path.expanduser(cfg.learned_dir)
     if fixed_m is not None:
         if learn:
-            raise PatientError("a fixed step length cannot be learned: give --fixed-step or --learn, not both")
+            raise LearnedError("a fixed step length cannot be learned: give --fixed-step or --learn, not both")
         if patient:
-            raise PatientError(f"a fixed step length uses no learned parameters: --patient {patient} has no effect with --fixed-step")
+            raise LearnedError(f"a fixed step length uses no learned parameters: --patient {patient} has no effect with --fixed-step")
         return StepPolicy(bounds, fixed_m=fixed_m), None
     c = cfg.learning
-    record = load_patient(directory, patient, lower=(c.alpha_min, c.xhat_min), upper=(c.alpha_max, c.xhat_max)) if patient else None
+    record = load_learned(directory, patient, lower=(c.alpha_min, c.xhat_min), upper=(c.alpha_max, c.xhat_max)) if patient else None
     if not learn:
         if patient and record is None:  # a typo or another folder must never walk a patient on the defaults
-            raise PatientError(f"{patient_path(directory, patient)}: no such patient file (--patient {patient}); check the "
-                               "name and the folder (--patients-dir, controller.patients_dir), or create it with --learn")
+            raise LearnedError(f"{learned_path(directory, patient)}: no such learned file (--patient {patient}); check the "
+                               "name and the folder (--learned-dir, controller.learned_dir), or create it with --learn")
         theta = record.theta if record is not None else (cfg.compensation.alpha, cfg.compensation.xhat_com)
         return StepPolicy(bounds, theta=theta), None
     rng = rng if rng is not None else np.random.default_rng()
-    pi2 = restore_learner(record, rng, patient_path(directory, patient)) if record is not None else None
+    pi2 = restore_learner(record, rng, learned_path(directory, patient)) if record is not None else None
     pi2 = pi2 or learner(cfg, rng)
-    saver = PatientSaver(directory, patient) if patient else None
+    saver = LearnedSaver(directory, patient) if patient else None
 
     def on_update(l: Pi2Learner, _record: object) -> None:
         if saver is not None:

@@ -26,7 +26,7 @@ per roll-out, ``theta_new = sum_k P_k theta_k``.
 The numerical core is pure: no I/O, no clock, no global random state (a ``numpy.random.Generator``
 is injected), inputs are never mutated. :mod:`controller.pi2.rules` holds the costs, the update
 rules and the settings, :mod:`controller.pi2.learner` the online learner,
-:mod:`controller.pi2.state` its state for a patient's file.
+:mod:`controller.pi2.state` its state for a patient's learned file.
 """
 
 from controller.pi2.learner import Pi2Learner, Rejection, UpdateRecord

@@ -1,5 +1,5 @@
 """A learner's state as JSON-ready builtins, to resume learning after a restart (the patient's
-file keeps it: :mod:`controller.patients`)."""
+file keeps it: :mod:`controller.learned`)."""
 
 from __future__ import annotations
 

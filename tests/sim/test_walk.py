@@ -3,7 +3,7 @@ four emulated node boards and the simulated HHEA in one process, lock-step on th
 
 Only what the design promises is asserted (the gait is still being tuned): cycles walked without
 a fall, no rejected frame, the estimate's X_CoM/X_SP error within the goal, determinism for a
-seed, a fixed step policy's one length, a learning update and its patient file, the CLI's summary,
+seed, a fixed step policy's one length, a learning update and its learned file, the CLI's summary,
 its one-line errors, and the telemetry log. Each walk is 1-2 gait cycles (a few seconds)."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import pytest
 
 from config import default_config_path, load_config, with_overrides
 from controller import factory
-from controller.patients import load_patient, restore_learner
+from controller.learned import load_learned, restore_learner
 from controller.policy import StepRecord
 from controller.telemetry import FIELDS, SCHEMA_VERSION, TelemetryLog, read_log
 from protocol.enums import SWINGS, WALKING
@@ -172,7 +172,7 @@ def test_the_learning_policy_updates_within_a_short_walk_and_its_patient_file_lo
         "controller.learning.initial_alpha": c.alpha, "controller.learning.initial_xhat": c.xhat_com,
         "controller.learning.noise_alpha": 0.1, "controller.learning.noise_xhat": 0.01,
     })
-    policy, saver = factory.step_policy(cfg.controller, learn=True, patient="pat", patients_dir=str(tmp_path),
+    policy, saver = factory.step_policy(cfg.controller, learn=True, patient="pat", learned_dir=str(tmp_path),
                                         rng=np.random.default_rng(0))
     try:
         outcome = walk(cfg, cycles=2, seed=0, mode="sagittal", policy=policy)
@@ -189,9 +189,9 @@ def test_the_learning_policy_updates_within_a_short_walk_and_its_patient_file_lo
     assert update.falls == 0
     assert outcome.theta == tuple(learner.evaluation_theta())
     json.dumps(outcome.summary(), allow_nan=False)
-    # the patient file, written by the saver's thread, loads back
+    # the learned file, written by the saver's thread, loads back
     assert saver.errors == [] and saver.writes >= 1
-    record = load_patient(tmp_path, "pat")
+    record = load_learned(tmp_path, "pat")
     assert record.theta == pytest.approx(outcome.theta)
     restored = restore_learner(record, np.random.default_rng(0), saver.path)
     assert restored.n_updates == 1 and restored.theta.tolist() == learner.theta.tolist()
@@ -343,13 +343,13 @@ def test_an_unknown_patient_file_format_is_a_one_line_error_naming_the_file(caps
     path = tmp_path / "anna.json"
     path.write_text(json.dumps({"format": "another tool's file", "version": 7, "theta": [1, 2]}))
     for extra in ([], ["--learn"]):
-        line = one_line_error(capsys, ["walk", "--steps", "1", "--patient", "anna", "--patients-dir", str(tmp_path), *extra])
+        line = one_line_error(capsys, ["walk", "--steps", "1", "--patient", "anna", "--learned-dir", str(tmp_path), *extra])
         assert str(path) in line
 
 
 def test_fixed_step_with_learn_and_a_bad_patient_name_are_one_line_errors(capsys, tmp_path):
     one_line_error(capsys, ["walk", "--steps", "1", "--fixed-step", "0.12", "--learn"])
-    assert "patient name" in one_line_error(capsys, ["walk", "--learn", "--patient", "../x", "--patients-dir", str(tmp_path)])
+    assert "patient name" in one_line_error(capsys, ["walk", "--learn", "--patient", "../x", "--learned-dir", str(tmp_path)])
     assert list(tmp_path.iterdir()) == []
 
 
@@ -359,8 +359,8 @@ def test_the_controllers_new_flags_fail_before_the_bus_opens(capsys, tmp_path):
     assert "controller.step" in one_line_error(capsys, [*base, "--fixed-step", "0.5"])
     one_line_error(capsys, [*base, "--fixed-step", "0.12", "--learn"])
     (tmp_path / "anna.json").write_text("{ not json")
-    assert str(tmp_path / "anna.json") in one_line_error(capsys, [*base, "--patient", "anna", "--patients-dir", str(tmp_path)])
-    assert "patient name" in one_line_error(capsys, [*base, "--learn", "--patient", "a/b", "--patients-dir", str(tmp_path)])
+    assert str(tmp_path / "anna.json") in one_line_error(capsys, [*base, "--patient", "anna", "--learned-dir", str(tmp_path)])
+    assert "patient name" in one_line_error(capsys, [*base, "--learn", "--patient", "a/b", "--learned-dir", str(tmp_path)])
 
 
 @pytest.mark.parametrize("command", [["walk", "--steps", "1"], ["controller", "--lockstep", "--ticks", "3"]])

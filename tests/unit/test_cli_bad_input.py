@@ -189,7 +189,7 @@ def test_bad_input_is_one_line_a_non_zero_exit_and_changes_nothing(template, tmp
     assert "is the input" in by_case["decode-over-its-input-by-hard-link"].stderr
     assert "the file is empty" in by_case["decode-empty"].stderr and "e.log" in by_case["decode-empty"].stderr
     assert "no CAN frame" in by_case["view-trace-blf-as-asc"].stderr
-    assert "nobody.json: no such patient file" in by_case["walk-unknown-patient"].stderr
+    assert "nobody.json: no such learned file" in by_case["walk-unknown-patient"].stderr
     assert "--channel" in by_case["walk-empty-channel"].stderr
     assert "nope" in by_case["walk-render-missing-folder"].stderr
     for case in ("walk-steps-abc", "unknown-command", "view-port-too-big", "walk-negative-seed"):
@@ -225,15 +225,15 @@ def test_a_controller_restarted_with_the_same_log_keeps_the_first_runs_lines(tmp
 
 
 def test_the_patient_file_is_looked_for_beside_the_configuration(tmp_path):
-    """controller.patients_dir (relative) is resolved against the configuration file's folder, not the
+    """controller.learned_dir (relative) is resolved against the configuration file's folder, not the
     working directory; the error names the path looked in."""
     (tmp_path / "site").mkdir()
-    text = re.sub(r"(?m)^  patients_dir: .*$", "  patients_dir: patients", Path(DEFAULT_YAML).read_text())
+    text = re.sub(r"(?m)^  learned_dir: .*$", "  learned_dir: patients", Path(DEFAULT_YAML).read_text())
     (tmp_path / "site" / "exo.yaml").write_text(text)
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     result = run_cli(["walk", "--config", str(tmp_path / "site" / "exo.yaml"), "--patient", "anna"], elsewhere)
     assert result.returncode == 1
-    assert result.stderr.strip() == (f"aider-exo: error: {tmp_path / 'site' / 'patients' / 'anna.json'}: no such patient file "
-                                     "(--patient anna); check the name and the folder (--patients-dir, controller.patients_dir), "
+    assert result.stderr.strip() == (f"aider-exo: error: {tmp_path / 'site' / 'patients' / 'anna.json'}: no such learned file "
+                                     "(--patient anna); check the name and the folder (--learned-dir, controller.learned_dir), "
                                      "or create it with --learn")

@@ -1,5 +1,5 @@
 """Where each step's length comes from (controller/policy.py) and how the policies are built from
-the configuration and the patient files (controller/factory.py ``step_policy``): the fixed,
+the configuration and the learned files (controller/factory.py ``step_policy``): the fixed,
 compensated and learning policies; per-step and per-gait-cycle cost bookkeeping into PI²; a
 roll-out that ends after N cycles, at a fall, or is dropped."""
 
@@ -18,7 +18,7 @@ from config import default_config_path, load_config, with_overrides
 from config.errors import AiderError
 from controller import factory
 from controller.compensation import StepBounds
-from controller.patients import PatientError, load_patient, save_patient
+from controller.learned import LearnedError, load_learned, save_learned
 from controller.pi2 import UpdateRecord, learner_state
 from controller.policy import PolicyError, StepPolicy, StepRecord
 
@@ -221,7 +221,7 @@ def test_fixed_and_compensated_policies_ignore_falls_and_stops():
         assert policy.cycle_costs == [] and policy.learner is None
 
 
-# -- step_policy: the policies from the configuration and the patient files ------------------------------
+# -- step_policy: the policies from the configuration and the learned files ------------------------------
 
 
 def test_step_policy_fixed():
@@ -235,8 +235,8 @@ def test_step_policy_fixed_outside_the_safe_range_is_a_project_error():
 
 
 def test_step_policy_fixed_and_learning_together_is_an_error(tmp_path):
-    with pytest.raises(PatientError, match="--fixed-step or --learn") as info:
-        factory.step_policy(BASE.controller, fixed_m=0.12, learn=True, patient="p", patients_dir=str(tmp_path))
+    with pytest.raises(LearnedError, match="--fixed-step or --learn") as info:
+        factory.step_policy(BASE.controller, fixed_m=0.12, learn=True, patient="p", learned_dir=str(tmp_path))
     assert "\n" not in str(info.value)
     assert list(tmp_path.iterdir()) == []  # no saver, no file
 
@@ -246,20 +246,20 @@ def test_step_policy_compensated_from_the_configuration(tmp_path):
     c = BASE.controller.compensation
     assert policy.mode == "compensated" and saver is None and policy.theta == (c.alpha, c.xhat_com)
     # a patient without a file is an error naming the path looked in (never the defaults), and gets no file
-    with pytest.raises(PatientError, match=f"{tmp_path / 'new.json'}: no such patient file"):
-        factory.step_policy(BASE.controller, patient="new", patients_dir=str(tmp_path))
+    with pytest.raises(LearnedError, match=f"{tmp_path / 'new.json'}: no such learned file"):
+        factory.step_policy(BASE.controller, patient="new", learned_dir=str(tmp_path))
     assert list(tmp_path.iterdir()) == []
 
 
 def test_step_policy_compensated_from_the_patients_file(tmp_path):
-    save_patient(tmp_path, "anna", (-4.5, 0.75), None)
-    policy, saver = factory.step_policy(BASE.controller, patient="anna", patients_dir=str(tmp_path))
+    save_learned(tmp_path, "anna", (-4.5, 0.75), None)
+    policy, saver = factory.step_policy(BASE.controller, patient="anna", learned_dir=str(tmp_path))
     assert policy.mode == "compensated" and saver is None and policy.theta == (-4.5, 0.75)
 
 
 def test_step_policy_uses_the_configured_patients_dir(tmp_path, monkeypatch):
-    monkeypatch.setenv("HOME", str(tmp_path))  # controller.patients_dir is under the user's home
-    save_patient(Path(os.path.expanduser(BASE.controller.patients_dir)), "anna", (-2.0, 0.65), None)
+    monkeypatch.setenv("HOME", str(tmp_path))  # controller.learned_dir is under the user's home
+    save_learned(Path(os.path.expanduser(BASE.controller.learned_dir)), "anna", (-2.0, 0.65), None)
     policy, _ = factory.step_policy(BASE.controller, patient="anna")
     assert policy.theta == (-2.0, 0.65)
 
@@ -268,16 +268,16 @@ def test_step_policy_uses_the_configured_patients_dir(tmp_path, monkeypatch):
 def test_step_policy_never_falls_back_to_the_defaults_on_a_bad_file(tmp_path, learn):
     path = tmp_path / "anna.json"
     path.write_text('{"format": "something else"}')
-    with pytest.raises(PatientError) as info:
-        factory.step_policy(BASE.controller, learn=learn, patient="anna", patients_dir=str(tmp_path))
+    with pytest.raises(LearnedError) as info:
+        factory.step_policy(BASE.controller, learn=learn, patient="anna", learned_dir=str(tmp_path))
     assert str(path) in str(info.value) and "\n" not in str(info.value)
 
 
 def test_step_policy_refuses_a_theta_outside_the_learning_bounds(tmp_path):
     c = BASE.controller.learning
-    save_patient(tmp_path, "anna", (c.alpha_max + 3.0, 0.5), None)
-    with pytest.raises(PatientError, match="outside the bounds") as info:
-        factory.step_policy(BASE.controller, patient="anna", patients_dir=str(tmp_path))
+    save_learned(tmp_path, "anna", (c.alpha_max + 3.0, 0.5), None)
+    with pytest.raises(LearnedError, match="outside the bounds") as info:
+        factory.step_policy(BASE.controller, patient="anna", learned_dir=str(tmp_path))
     assert str(tmp_path / "anna.json") in str(info.value)
 
 
@@ -290,7 +290,7 @@ def test_step_policy_learning_without_a_patient_starts_at_the_configured_theta()
 
 
 def test_step_policy_learning_writes_the_patients_file_and_resumes_from_it(tmp_path):
-    policy, saver = factory.step_policy(SMALL.controller, learn=True, patient="anna", patients_dir=str(tmp_path),
+    policy, saver = factory.step_policy(SMALL.controller, learn=True, patient="anna", learned_dir=str(tmp_path),
                                         rng=np.random.default_rng(0))
     try:
         assert saver is not None and saver.path == tmp_path / "anna.json"
@@ -301,32 +301,32 @@ def test_step_policy_learning_writes_the_patients_file_and_resumes_from_it(tmp_p
     finally:
         saver.close()
     assert saver.errors == [] and saver.writes >= 1
-    record = load_patient(tmp_path, "anna")
+    record = load_learned(tmp_path, "anna")
     assert record.theta == pytest.approx(tuple(policy.learner.evaluation_theta()))
     # the next start resumes the learner ...
-    again, saver2 = factory.step_policy(SMALL.controller, learn=True, patient="anna", patients_dir=str(tmp_path),
+    again, saver2 = factory.step_policy(SMALL.controller, learn=True, patient="anna", learned_dir=str(tmp_path),
                                         rng=np.random.default_rng(1))
     saver2.close()
     assert again.learner.n_updates == 1 and again.learner.theta.tolist() == policy.learner.theta.tolist()
     # ... and walking without learning uses the learned theta
-    walking, _ = factory.step_policy(SMALL.controller, patient="anna", patients_dir=str(tmp_path))
+    walking, _ = factory.step_policy(SMALL.controller, patient="anna", learned_dir=str(tmp_path))
     assert walking.mode == "compensated" and walking.theta == record.theta
 
 
 def test_step_policy_learning_with_a_corrupt_learner_state_names_the_file(tmp_path):
     path = tmp_path / "anna.json"
-    save_patient(tmp_path, "anna", (-1.0, 0.6), None)
+    save_learned(tmp_path, "anna", (-1.0, 0.6), None)
     data = json.loads(path.read_text())
     data["learner"] = {"format": "not a learner"}
     path.write_text(json.dumps(data))
-    with pytest.raises(PatientError) as info:
-        factory.step_policy(SMALL.controller, learn=True, patient="anna", patients_dir=str(tmp_path))
+    with pytest.raises(LearnedError) as info:
+        factory.step_policy(SMALL.controller, learn=True, patient="anna", learned_dir=str(tmp_path))
     assert str(path) in str(info.value)
 
 
 def test_step_policy_refuses_a_bad_patient_name(tmp_path):
-    with pytest.raises(PatientError, match="patient name"):
-        factory.step_policy(BASE.controller, learn=True, patient="../../etc/passwd", patients_dir=str(tmp_path))
+    with pytest.raises(LearnedError, match="patient name"):
+        factory.step_policy(BASE.controller, learn=True, patient="../../etc/passwd", learned_dir=str(tmp_path))
 
 
 def test_a_step_bounds_object_is_what_the_policy_checks_against():

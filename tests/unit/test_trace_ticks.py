@@ -149,9 +149,10 @@ def test_plot_writes_a_png_and_never_over_its_input(tmp_path, capsys):
 
 
 def test_a_real_controller_runs_log(tmp_path):
-    """``aider-exo controller`` on a virtual bus without nodes for 50 ticks, its log read back."""
+    """``aider-exo controller`` on a virtual bus without nodes for 50 ticks, its log read back. Lock-step:
+    in real time a machine busy with the other tests can skip ticks (an overrun), which the log then lacks."""
     log = tmp_path / "run.jsonl"
-    run = subprocess.run([sys.executable, "-m", "tools.cli", "controller", "--bus", "virtual", "--channel", "ticks-test",
+    run = subprocess.run([sys.executable, "-m", "tools.cli", "controller", "--bus", "virtual", "--channel", "ticks-test", "--lockstep",
                           "--ticks", "50", "--log", str(log), "--quiet"], capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     out = subprocess.run([sys.executable, "-m", "tools.cli", "trace", "ticks", str(log), "--json"],

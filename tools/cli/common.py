@@ -41,12 +41,12 @@ def config_path(args: argparse.Namespace) -> Path:
     return Path(args.config) if getattr(args, "config", None) else default_config_path()
 
 
-def patients_folder(args: argparse.Namespace, cfg: Config) -> Path:
-    """Where ``--patient NAME`` is looked for: ``--patients-dir`` (relative: to the working
-    directory), else ``controller.patients_dir`` (relative: to the configuration file's folder)."""
-    if getattr(args, "patients_dir", None):
-        return Path(args.patients_dir).absolute()
-    configured = Path(cfg.controller.patients_dir).expanduser()
+def learned_folder(args: argparse.Namespace, cfg: Config) -> Path:
+    """Where ``--patient NAME`` is looked for: ``--learned-dir`` (relative: to the working
+    directory), else ``controller.learned_dir`` (relative: to the configuration file's folder)."""
+    if getattr(args, "learned_dir", None):
+        return Path(args.learned_dir).absolute()
+    configured = Path(cfg.controller.learned_dir).expanduser()
     return configured if configured.is_absolute() else config_path(args).absolute().parent / configured
 
 

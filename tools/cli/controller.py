@@ -16,7 +16,7 @@ import argparse
 import sys
 
 from protocol.enums import WALKING, GaitState
-from tools.cli.common import StopSignals, add_config_options, config_path, load_cli_config, patients_folder, positive_float, positive_int, print_json
+from tools.cli.common import StopSignals, add_config_options, config_path, load_cli_config, learned_folder, positive_float, positive_int, print_json
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -37,10 +37,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "controller.safety.reset_healthy_ticks, both sticks loaded); a later FAULT stays latched, and it never "
                    "walks on its own (add --walk or --cycles)")
     p.add_argument("--fixed-step", type=positive_float, metavar="M", help="every step this long: no compensation (the baseline)")
-    p.add_argument("--learn", action="store_true", help="learn the compensation online with PI² (saved to --patient's file)")
+    p.add_argument("--learn", action="store_true", help="learn the compensation online with PI² (saved to --patient's learned file)")
     p.add_argument("--patient", metavar="NAME", help="walk with (and, learning, update) this patient's learned parameters "
                    "(no such file: an error, unless --learn creates it)")
-    p.add_argument("--patients-dir", metavar="DIR", help="folder of the patient files (default: controller.patients_dir, relative: to the configuration file's folder)")
+    p.add_argument("--learned-dir", metavar="DIR", help="folder of the learned files (default: controller.learned_dir, relative: to the configuration file's folder)")
     p.add_argument("--log", metavar="FILE", help="per-tick telemetry as JSON lines (the first line is the schema); an existing log "
                    "is first moved aside to FILE's name dated with its last change (NAME.20261207T054200Z.jsonl), never truncated")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout at exit")
@@ -62,18 +62,18 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_cli_config(args, needs=("controller",))
     from config.files import check_output
     from controller.factory import step_policy
-    from controller.patients import patient_path
+    from controller.learned import learned_path
 
-    # Everything that can be wrong with the configuration, the log or a patient file fails here, before the bus opens.
+    # Everything that can be wrong with the configuration, the log or a learned file fails here, before the bus opens.
     if args.log:
         check_output(args.log, inputs=[config_path(args)], option="the telemetry log --log")
-    patients = patients_folder(args, cfg)
+    patients = learned_folder(args, cfg)
     policy, saver = step_policy(cfg.controller, fixed_m=args.fixed_step, learn=args.learn, patient=args.patient,
-                                patients_dir=str(patients))
+                                learned_dir=str(patients))
     if args.learn and not args.patient:
         print("aider-exo controller: warning: learning without --patient: what is learnt is not kept", file=sys.stderr)
     if args.patient and not (args.quiet or args.json):
-        print(f"aider-exo controller: patient {args.patient}: {patient_path(patients, args.patient)}", file=sys.stderr)
+        print(f"aider-exo controller: patient {args.patient}: {learned_path(patients, args.patient)}", file=sys.stderr)
     core = ControllerCore(cfg.controller, policy=policy)
     notifier = Notifier()
     rt = None
@@ -149,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
         "policy": core.policy.mode,
         "steps_completed": sum(1 for step in core.steps if step.landed),
         "steps": [step.as_dict() for step in core.steps],
-        "patient_file": {"path": str(saver.path), "writes": saver.writes, "errors": saver.errors} if saver else None,
+        "learned_file": {"path": str(saver.path), "writes": saver.writes, "errors": saver.errors} if saver else None,
         "stopped_by": stop.name,
         "resets": [tick for tick, button in operator.presses if button == "reset"],
     }

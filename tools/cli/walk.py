@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from protocol.clock import TICK_S
-from tools.cli.common import StopSignals, add_config_options, add_mode_option, config_path, load_cli_config, patients_folder, positive_float, positive_int, print_json, sim_mode, port, seed_type
+from tools.cli.common import StopSignals, add_config_options, add_mode_option, config_path, load_cli_config, learned_folder, positive_float, positive_int, print_json, sim_mode, port, seed_type
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -37,10 +37,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=seed_type, default=0, help="seed of the patient's stick placement and sensor noise (default 0)")
     add_mode_option(p)
     p.add_argument("--fixed-step", type=positive_float, metavar="M", help="every step this long: no compensation (the baseline)")
-    p.add_argument("--learn", action="store_true", help="learn the compensation online with PI² (saved to --patient's file)")
+    p.add_argument("--learn", action="store_true", help="learn the compensation online with PI² (saved to --patient's learned file)")
     p.add_argument("--patient", metavar="NAME", help="walk with (and, learning, update) this patient's learned parameters "
                    "(no such file: an error, unless --learn creates it)")
-    p.add_argument("--patients-dir", metavar="DIR", help="folder of the patient files (default: controller.patients_dir, relative: to the configuration file's folder)")
+    p.add_argument("--learned-dir", metavar="DIR", help="folder of the learned files (default: controller.learned_dir, relative: to the configuration file's folder)")
     p.add_argument("--virtual-patient", metavar="FILE", type=Path,
                    help="in-process only: walk this simulated patient (config/patients/*.yaml: body, arms, stick placement, "
                         "the controller's body model; docs/POPULATION.md)")
@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     from config import ConfigError
     from config.files import check_output, check_output_folder
     from controller.factory import step_policy
-    from controller.patients import patient_path
+    from controller.learned import learned_path
     from controller.telemetry import TelemetryLog
     from tools.pipeline import Pace, walk
 
@@ -120,15 +120,15 @@ def run(args: argparse.Namespace) -> int:
         inputs += [args.render / f"walk-{args.mode}.png", args.render / f"walk-{args.mode}.gif"]
     if args.log:
         check_output(args.log, inputs=inputs, option="the telemetry log --log")
-    patients = patients_folder(args, cfg)
+    patients = learned_folder(args, cfg)
     # Exploration seeded from --seed (its own stream): a learning walk is as repeatable as any other.
     rng = np.random.default_rng(np.random.SeedSequence([args.seed, 1]))
     policy, saver = step_policy(cfg.controller, fixed_m=args.fixed_step, learn=args.learn, patient=args.patient,
-                                patients_dir=str(patients), rng=rng)
+                                learned_dir=str(patients), rng=rng)
     if args.learn and not args.patient:
         print("aider-exo walk: warning: learning without --patient: what is learnt is not kept", file=sys.stderr)
     if args.patient and not (args.quiet or args.json):
-        print(f"aider-exo walk: patient {args.patient}: {patient_path(patients, args.patient)}", file=sys.stderr)
+        print(f"aider-exo walk: patient {args.patient}: {learned_path(patients, args.patient)}", file=sys.stderr)
     if args.pace is not None and args.pace < 0:
         raise ConfigError(f"--pace {args.pace}: give 0 (as fast as it computes) or a positive factor", key="pace")
     pace = Pace(args.pace if args.pace is not None else 1.0 if args.view else 0.0)
@@ -184,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
     summary["bus"] = f"{cfg.bus.interface}:{cfg.bus.channel}" if two_processes else "virtual (in-process)"
     summary["telemetry"] = log_report
     if saver is not None:
-        summary["patient_file"] = {"path": str(saver.path), "writes": saver.writes, "errors": saver.errors}
+        summary["learned_file"] = {"path": str(saver.path), "writes": saver.writes, "errors": saver.errors}
     if nodes_report is not None:
         summary["nodes"] = nodes_report
     if view_report is not None:
@@ -237,8 +237,8 @@ def _summary_text(s: dict[str, Any]) -> str:
         v = s["view"]
         text += (f"\n  live view at {v['url']}: {v['frames']} frames seen, {v['server']['connects']} browser connections, "
                  f"{v['server']['snapshots']} updates sent")
-    if s.get("patient_file"):
-        text += f"\n  patient file {s['patient_file']['path']} ({s['patient_file']['writes']} writes)"
+    if s.get("learned_file"):
+        text += f"\n  learned file {s['learned_file']['path']} ({s['learned_file']['writes']} writes)"
     return text
 
 

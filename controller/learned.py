@@ -1,11 +1,11 @@
-"""Learned step-length compensation per patient: ``<patients_dir>/<name>.json``.
+"""The learned step-length compensation of each patient: ``<learned_dir>/<name>.json``.
 
-A patient file holds the theta = (alpha, Xhat_CoM) to walk with (the learner's evaluation theta:
+A learned file holds the theta = (alpha, Xhat_CoM) to walk with (the learner's evaluation theta:
 the mean of its last updates) and the whole learner state, so that learning resumes where it
 stopped. Theta means something only with the X_CoM/X_SP it was learned on, so the file names it
 (``x_ratio``): a file of another one (version 1: over both feet) is refused, to be relearned.
 It is written atomically after every update; a file that cannot be read, does not parse
-or holds parameters out of their bounds is a :class:`PatientError` naming the file, never a
+or holds parameters out of their bounds is a :class:`LearnedError` naming the file, never a
 silent fallback to the defaults.
 """
 
@@ -34,69 +34,69 @@ _OLD_RATIOS = {1: "both feet", 2: "the stance ankle and the stick tips"}
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
 
 
-class PatientError(AiderError):
+class LearnedError(AiderError):
     """A patient name or file that cannot be used (one line, naming the file)."""
 
 
 @dataclass(frozen=True)
-class PatientRecord:
+class LearnedRecord:
     name: str
     theta: tuple[float, float]  # (alpha, Xhat_CoM) to walk with
     learner_state: dict[str, Any] | None
 
 
-def patient_path(directory: str | os.PathLike[str], name: str) -> Path:
+def learned_path(directory: str | os.PathLike[str], name: str) -> Path:
     if not isinstance(name, str) or not _NAME.fullmatch(name):  # fullmatch: '$' would let a trailing newline through
-        raise PatientError(f"patient name {name!r}: use 1-64 letters, digits, '_', '-' or '.', starting with a letter or digit")
+        raise LearnedError(f"patient name {name!r}: use 1-64 letters, digits, '_', '-' or '.', starting with a letter or digit")
     return Path(directory) / f"{name}.json"
 
 
-def load_patient(
+def load_learned(
     directory: str | os.PathLike[str], name: str, *, lower: tuple[float, float] | None = None,
     upper: tuple[float, float] | None = None,
-) -> PatientRecord | None:
+) -> LearnedRecord | None:
     """The patient's record, or None if the patient has no file yet; ``lower``/``upper``: the
     bounds of theta = (alpha, Xhat_CoM) (``controller.learning``), a theta outside them an error."""
-    path = patient_path(directory, name)
+    path = learned_path(directory, name)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         return None
     except (OSError, ValueError, RecursionError) as exc:  # RecursionError: JSON nested too deep
-        raise PatientError(f"{path}: cannot read the patient file ({exc})") from None
+        raise LearnedError(f"{path}: cannot read the learned file ({exc})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise PatientError(f"{path}: not an {FORMAT!r} file")
+        raise LearnedError(f"{path}: not an {FORMAT!r} file")
     old = data.get("version")
     if isinstance(old, int) and old in _OLD_RATIOS:
-        raise PatientError(f"{path}: theta learned on X_CoM/X_SP over {_OLD_RATIOS[old]} (version {old}); this controller's "
+        raise LearnedError(f"{path}: theta learned on X_CoM/X_SP over {_OLD_RATIOS[old]} (version {old}); this controller's "
                            f"is over the {X_RATIO}: relearn the patient")
     if data.get("version") != VERSION or data.get("x_ratio") != X_RATIO:
-        raise PatientError(f"{path}: not an {FORMAT!r} file of version {VERSION} with x_ratio {X_RATIO!r}")
+        raise LearnedError(f"{path}: not an {FORMAT!r} file of version {VERSION} with x_ratio {X_RATIO!r}")
     theta = data.get("theta")
     if not (isinstance(theta, list) and len(theta) == 2
             and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in theta)):
-        raise PatientError(f"{path}: theta must be two finite numbers (alpha, Xhat_CoM), got {theta!r}")
+        raise LearnedError(f"{path}: theta must be two finite numbers (alpha, Xhat_CoM), got {theta!r}")
     if lower is not None and upper is not None and not all(lo <= v <= hi for v, lo, hi in zip(theta, lower, upper)):
-        raise PatientError(f"{path}: theta {theta} outside the bounds {list(lower)} .. {list(upper)} (controller.learning)")
+        raise LearnedError(f"{path}: theta {theta} outside the bounds {list(lower)} .. {list(upper)} (controller.learning)")
     learner = data.get("learner")
     if learner is not None and not isinstance(learner, dict):
-        raise PatientError(f"{path}: learner must be an object or null")
-    return PatientRecord(name, (float(theta[0]), float(theta[1])), learner)
+        raise LearnedError(f"{path}: learner must be an object or null")
+    return LearnedRecord(name, (float(theta[0]), float(theta[1])), learner)
 
 
-def restore_learner(record: PatientRecord, rng: np.random.Generator, path: str | os.PathLike[str]) -> Pi2Learner | None:
+def restore_learner(record: LearnedRecord, rng: np.random.Generator, path: str | os.PathLike[str]) -> Pi2Learner | None:
     """The learner stored in ``record`` (None if it has none)."""
     if record.learner_state is None:
         return None
     try:
         return learner_from_state(record.learner_state, rng)
     except LearnerError as exc:
-        raise PatientError(f"{path}: {exc}") from None
+        raise LearnedError(f"{path}: {exc}") from None
 
 
-def save_patient(directory: str | os.PathLike[str], name: str, theta: Any, learner: Pi2Learner | None) -> Path:
-    """Write the patient's file atomically (the folder is created if needed)."""
-    path = patient_path(directory, name)
+def save_learned(directory: str | os.PathLike[str], name: str, theta: Any, learner: Pi2Learner | None) -> Path:
+    """Write the patient's learned file atomically (the folder is created if needed)."""
+    path = learned_path(directory, name)
     _write(path, [float(v) for v in np.asarray(theta, dtype=float).reshape(2)], learner_state(learner) if learner else None, name)
     return path
 
@@ -108,13 +108,13 @@ def _write(path: Path, theta: list[float], learner_state: dict[str, Any] | None,
         path.parent.mkdir(parents=True, exist_ok=True)
         write_text(path, text + "\n")
     except OSError as exc:
-        raise PatientError(f"{path}: cannot write the patient file ({exc})") from None
+        raise LearnedError(f"{path}: cannot write the learned file ({exc})") from None
     except OutputError as exc:
-        raise PatientError(f"cannot write the patient file: {exc}") from None
+        raise LearnedError(f"cannot write the learned file: {exc}") from None
 
 
-class PatientSaver:
-    """Writes a patient's file off the tick: :meth:`submit` hands the newest state to a writer
+class LearnedSaver:
+    """Writes a patient's learned file off the tick: :meth:`submit` hands the newest state to a writer
     thread (a newer state replaces one not yet written), :meth:`close` writes what is pending and
     stops it. A write error is kept (``errors``) and reported by the caller, never raised into the
     tick."""
@@ -123,7 +123,7 @@ class PatientSaver:
         import threading
 
         self.directory, self.name = directory, name
-        self.path = patient_path(directory, name)
+        self.path = learned_path(directory, name)
         self.errors: list[str] = []
         self.writes = 0
         self._pending: tuple[list[float], dict[str, Any] | None] | None = None
@@ -150,7 +150,7 @@ class PatientSaver:
             try:
                 _write(self.path, theta, state, self.name)
                 self.writes += 1
-            except PatientError as exc:
+            except LearnedError as exc:
                 self.errors.append(str(exc))
 
     def close(self) -> None:
