@@ -92,6 +92,15 @@ class ControllerCore:
         """The operator's reset of HOLD or FAULT (the nodes clear their faults too)."""
         self.reset_requested = True
 
+    def walk_ended(self, *, fell: bool) -> None:
+        """The walk stopped: a fall ends the learner's roll-out with its terminal cost, any other
+        stop discards it. The one way the learner hears of a fall: the controller's own fall
+        detection, or a fall the simulation's ground truth saw first (an experiment's walk)."""
+        if fell:
+            self.policy.fell()
+        else:
+            self.policy.abandon()
+
     def overran(self, tick: int, skipped: int) -> None:
         """The loop overran into ``tick``, skipping ``skipped`` ticks (F25: :meth:`Monitors.overran`)."""
         self.monitors.overran(self.fsm.state, tick, skipped)
@@ -165,10 +174,7 @@ class ControllerCore:
         finished = None
         if state != before and state in (GaitState.FAULT, GaitState.HOLD, GaitState.STOP):
             fault = self.fsm.transitions[-1].fault
-            if fault is not None and fault.kind is FaultKind.FALL:
-                self.policy.fell()  # the roll-out ends with its terminal cost
-            else:
-                self.policy.abandon()
+            self.walk_ended(fell=fault is not None and fault.kind is FaultKind.FALL)
         if before in SWINGS and state not in SWINGS:
             step = self.steps[-1]
             step.end_tick, step.landed = tick, landed

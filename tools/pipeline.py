@@ -183,7 +183,7 @@ def drive(
         fall = fallen() if fallen is not None else None
         if fall:
             outcome.fell, outcome.fall_reason = True, fall
-            core.policy.fell()
+            core.walk_ended(fell=True)
             break
         if result.state == GaitState.FAULT:
             fault = core.fsm.transitions[-1].fault
