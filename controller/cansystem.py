@@ -95,14 +95,17 @@ class CanSystem:
         self.started = False  # the NMT start sent
         self._start_now = False  # the NMT start due in this tick's frames
         self._faults: list[Fault] = []  # found since the last snapshot
+        self._lost: set[str] = set()  # the nodes lost (F1) at the last snapshot
         self._integrity: deque[tuple[int, str]] = deque()  # (tick, reason) of the nodes' damaged frames
         self._error_frame_tick = -(10**9)  # the last error frame's tick
         self._failed_sends: deque[int] = deque(maxlen=safety.send_failure_ticks)  # ticks with a failed send
         self.counters = BusCounters()
 
     def operational_nodes(self) -> set[str]:
-        """The nodes whose heartbeat says OPERATIONAL: a tick's read waits for their frames."""
-        return {n for n, s in self.nodes.items() if s.nmt == NmtState.OPERATIONAL}
+        """The nodes whose heartbeat says OPERATIONAL and that were not lost at the last tick: a
+        tick's read waits for their frames (for a lost node's, which may never come, a lock-step
+        tick would wait out its whole timeout every tick; its frames are read when they come)."""
+        return {n for n, s in self.nodes.items() if s.nmt == NmtState.OPERATIONAL and n not in self._lost}
 
     # -- the frames in ------------------------------------------------------------------------------
 
@@ -268,10 +271,11 @@ class CanSystem:
             events = ("NMT start",)
         operational = all(n.nmt == NmtState.OPERATIONAL for n in self.nodes.values())
         ages = [tick - n.status_tick if n.status is not None else 10**9 for n in self.nodes.values()]
-        faults = self._faults
+        faults, self._lost = self._faults, set()
         for name, node in self.nodes.items():
             if node.was_operational and tick - max(node.status_tick, node.operational_since) >= self.lost_ticks:
                 faults.append(Fault(FaultKind.NODE_LOST, name))
+                self._lost.add(name)
             if node.status is not None and node.status_tick == tick:
                 if node.status.drive_state == DriveState.FAULT:
                     faults.append(Fault(FaultKind.DRIVE_FAULT, name, f"error {node.status.error_code}"))

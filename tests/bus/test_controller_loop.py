@@ -84,6 +84,11 @@ def test_a_frozen_node_is_lost_within_three_ticks(rig):
     fault_tick = states.index(GaitState.FAULT)
     assert 30 <= fault_tick <= 33
     assert any("NODE_LOST(LEFT_KNEE)" in e for e in loop.report.events)
+    # the lost node is no longer waited for: lock-step ticks do not wait out their timeout for it
+    waited = loop.hardware.counters.timeouts
+    assert waited == BASE.controller.safety.lost_ticks and "LEFT_KNEE" not in loop.hardware.operational_nodes()
+    states = [loop.step().state for _ in range(20)]
+    assert set(states) == {GaitState.FAULT} and loop.hardware.counters.timeouts == waited
 
 
 def _stopped_by_a_stall(loop, nodes: dict) -> str | None:
