@@ -238,9 +238,11 @@ def _steady_patient_config(folder: Path) -> Path:
 
 
 @contextmanager
-def _mid_swing(vcan0: str, tmp: Path, name: str, nodes_extra: tuple[str, ...] = ()):
+def _mid_swing(vcan0: str, tmp: Path, name: str, nodes_extra: tuple[str, ...] = (), *, lockstep: bool = False):
     """candump recording ``<tmp>/<name>-<attempt>.log``, ``aider-exo nodes`` booted and
-    ``aider-exo controller --walk``, both in real time, until 0.6 s into the second swing (of 1.2 s);
+    ``aider-exo controller --walk``, both in real time (``lockstep``: both in lock-step, where no
+    stall of the machine can disrupt the walk: one attempt, any disruption fails), until 0.6 s into
+    the second swing (of 1.2 s);
     yields (nodes, controller, tail of the capture, its path) there (at 0.3 s the patient, held by
     the quick stop, sometimes stood off its sticks, 5-35 N, and I4 rightly refused the reset of
     the F22 test: reproduced on the host, killed 2-8 ticks into a swing; 10-55 ticks in, the sticks
@@ -253,21 +255,23 @@ def _mid_swing(vcan0: str, tmp: Path, name: str, nodes_extra: tuple[str, ...] = 
     The steady patient: these tests are of the fault protocol. Held mid-swing by the quick stop,
     the noisy one (the default) stood with one stick at 6-8 N in 2 of about 9 runs (2026-12-05/06)
     and I4 rightly refused the reset the F22 test needs."""
-    nodes_extra = ("--config", str(_steady_patient_config(tmp)), *nodes_extra)
+    nodes_extra = ("--config", str(_steady_patient_config(tmp)), *nodes_extra, *(("--lockstep",) if lockstep else ()))
     reasons, stalls = [], 0
-    for attempt in range(ATTEMPTS):
+    for attempt in range(1 if lockstep else ATTEMPTS):
         log = tmp / f"{name}-{attempt}.log"
         nodes = ctl = None
         try:
             with candump(vcan0, log):
                 try:
                     nodes = _boot(vcan0, log, *nodes_extra)
-                    ctl = _controller(vcan0, "--walk")
+                    ctl = _controller(vcan0, "--walk", *(("--lockstep",) if lockstep else ()))
                     tail = _Tail(log)
                     _wait(tail, _Swings(2), "the second swing", (nodes, ctl), SECOND_SWING_S, _NotWalking)
                     _wait(tail, _Count({SYNC_ID}, 30), "0.6 s into the swing", (nodes, ctl))
                 except _NotWalking as e:
                     why = _why(ctl)
+                    if lockstep:
+                        pytest.fail(f"the lock-step walk stopped before the fault: {e}: {why}")
                     stalls += bool(why) and all(stall_can_explain(w.split(": ", 2)[-1]) for w in why)
                     reasons.append(f"attempt {attempt + 1}: {e}: {why}")
                     _reap(nodes, ctl)
@@ -288,7 +292,10 @@ def _mid_swing(vcan0: str, tmp: Path, name: str, nodes_extra: tuple[str, ...] = 
 
 
 def test_killed_nodes_process_faults_the_controller_within_4_ticks_and_it_holds(vcan0, tmp_path):
-    with _mid_swing(vcan0, tmp_path, "candump") as (nodes, ctl, tail, log):
+    """F1, in lock-step (a controller tick waits for the nodes' frames, so no stall of the machine
+    can disrupt the walk before the kill; the fault is counted in ticks either way): the nodes
+    process killed mid-swing, FAULT (NODE_LOST) within 4 ticks, HOLD commands from then on."""
+    with _mid_swing(vcan0, tmp_path, "candump", lockstep=True) as (nodes, ctl, tail, log):
         nodes.kill()  # SIGKILL
         nodes.communicate(timeout=60)
         _wait(tail, lambda i, d: _gait_state(i, d) == GaitState.FAULT, "the controller's FAULT", (ctl,))
