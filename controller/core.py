@@ -30,7 +30,7 @@ from controller.estimator import Estimate, Measurements, StateEstimator
 from controller.factory import gait_planner, joint_bounds, step_bounds
 from controller.faults import Fault, FaultKind, Reaction
 from controller.fsm import FsmInputs, GaitFsm
-from controller.interfaces import Commands, Snapshot
+from controller.interfaces import Commands, LearningTelemetry, Snapshot, StepTelemetry
 from controller.monitors import Monitors
 from controller.policy import StepPolicy, StepRecord, learning_telemetry, step_telemetry
 from protocol.commands import JointCommand
@@ -77,6 +77,10 @@ class ControllerCore:
         self._step = StepRecord(index=0, leg="", start_tick=0)  # the step in the making
         self._targets: np.ndarray | None = None  # the setpoints sent last tick (None: the last commands held)
         self.gait_part = ""  # shift, lean or swing while walking
+        self._telemetry = self._current_telemetry()
+
+    def _current_telemetry(self) -> tuple[StepTelemetry, LearningTelemetry]:
+        return step_telemetry(self.steps, self.policy), learning_telemetry(self.steps, self.policy)
 
     # -- the operator and the loop ---------------------------------------------------------------
 
@@ -162,8 +166,9 @@ class ControllerCore:
             self.walk_requested = self.walk_requested and state in (GaitState.INIT, GaitState.STAND, GaitState.STOP)
             self.stop_requested = self.stop_requested and state in WALKING
         finished = self._gait_transition(tick, before, state, estimate, measurements, landed, events)
-        commands = Commands(state, self._command(measurements), reset,
-                            step_telemetry(self.steps, self.policy), learning_telemetry(self.steps, self.policy))
+        if state != before:  # a step, a landing, a roll-out's end: what the telemetry shows changes only with the state
+            self._telemetry = self._current_telemetry()
+        commands = Commands(state, self._command(measurements), reset, *self._telemetry)
         return TickResult(tick, state, commands, estimate, measurements, events, finished)
 
     def _gait_transition(

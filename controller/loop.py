@@ -95,6 +95,10 @@ class LockstepLoop:
             "events": result.events,
         }
 
+    def resume_at(self, tick: int) -> None:
+        """The next step is tick ``tick`` (a recording's numbering, where ticks were skipped)."""
+        self.tick = tick - 1
+
     def step(self) -> TickResult:
         start = self.clock.now_ns()
         wait = self.tick_timeout_s if self.hardware.operational_nodes() else self.boot_wait_s

@@ -132,7 +132,7 @@ class Session:
         """``ticks`` ticks before ``tick`` did not run (a recorded real-time run's overrun): the
         core hears of it as from the real-time loop's timer, and the next step is ``tick``."""
         self.core.overran(tick, ticks)
-        self.loop.tick = tick - 1
+        self.loop.resume_at(tick)
 
     def status(self) -> Status:
         result, core, hw = self.last, self.core, self.hardware
