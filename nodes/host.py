@@ -22,6 +22,13 @@ inside it), which the host ticks. It speaks only CAN through :mod:`protocol`:
   answered after the controller's 8 ms read window, three times in a row a lost node.
 
 Heartbeats follow the node's time: the SYNC tick in lock-step, its own timer in real time.
+
+A crashed controller sends no SYNC again. Real boards notice that on their own clock; lock-step
+boards, whose clock is the SYNC, would wait for ever. With ``silence_s`` (``aider-exo nodes
+--lockstep --silence S``) a controller silent that long in wall time is taken as gone: from the
+last SYNC's tick on the boards run on their own 20 ms timer (watchdogs, physics, heartbeats, as
+in real time) until a SYNC comes again and leads once more. Off by default: a lock-step run whose
+controller is only slow must stay deterministic.
 """
 
 from __future__ import annotations
@@ -86,6 +93,7 @@ class HostStats:
     syncs: int = 0
     physics_ticks: int = 0
     overruns: int = 0
+    silences: int = 0  # lock-step: times the controller fell silent and the boards took their own clock
     # real time: ticks come to STALL_NS or more late beyond the physics work (protocol.clock): (SYNC tick, ms late)
     stalls: list[tuple[int, float]] = field(default_factory=list)
     frames_sent: int = 0
@@ -113,11 +121,14 @@ class NodesHost:
 
     def __init__(
         self, cfg: Config, bus: can.BusABC, *, lockstep: bool, seed: int = 0, gui: bool = False,
-        clock: Clock | None = None, codec: Codec | None = None,
+        clock: Clock | None = None, codec: Codec | None = None, silence_s: float | None = None,
     ) -> None:
         if cfg.sim is None or cfg.nodes is None:
             raise NodesError("the configuration needs a sim and a nodes section to emulate the nodes")
+        if silence_s is not None and not (lockstep and silence_s > 0):
+            raise NodesError(f"a controller's silence (here {silence_s} s) is watched in lock-step only, and must be positive")
         self.cfg, self.bus, self.lockstep = cfg, bus, lockstep
+        self._silence_ns = None if silence_s is None else int(silence_s * 1e9)
         self._bus_send = send_of(bus)  # each frame is made for one send
         self.clock = clock or MonotonicClock()
         self.codec = codec or Codec()
@@ -156,7 +167,9 @@ class NodesHost:
         self._lists_of: Any = None  # the reading :meth:`_reading_lists` last converted
         self._lists: _Lists | None = None
         self.start_ns = self.clock.now_ns()
-        self.own_tick = -1  # real time: the node's own tick counter
+        self.own_tick = -1  # real time, or lock-step on the boards' own clock: the node's own tick counter
+        self.own_clock = not lockstep  # the boards' own timer ticks them (lock-step: after a silent controller)
+        self._last_sync_ns: int | None = None
         self.phase_ns = 0  # real time: the tick schedule's shift that locks it to the SYNC
         self._physics_end_ns = 0  # real time: when the last physics tick ended
         self.sync_locked = False
@@ -174,6 +187,22 @@ class NodesHost:
 
     def _node_time_ms(self, tick: int) -> float:
         return tick * TICK_MS if self.lockstep else self.now_ms()
+
+    def _watch_silence(self, now: int) -> int | None:
+        """Lock-step with ``silence_s``: take the boards' own clock once the controller has been
+        silent that long (their next tick is the last SYNC's tick + 1, due now). Returns when to look
+        again, or None."""
+        if self.own_clock or self._silence_ns is None or self._last_sync_ns is None:
+            return None
+        due = self._last_sync_ns + self._silence_ns
+        if now < due:
+            return due
+        self.own_clock = True
+        self.stats.silences += 1
+        self.own_tick = self.last_sync_tick
+        self.phase_ns += now - self._next_tick_ns()
+        self._physics_end_ns = now
+        return None
 
     def boot(self) -> None:
         """Power-on: the boards' time and tick schedule start now (not at construction: the
@@ -233,6 +262,9 @@ class NodesHost:
         """A SYNC: apply commands; in lock-step advance the physics one tick; report."""
         self.stats.syncs += 1
         self.last_sync_tick = tick
+        if self.lockstep:
+            self.own_clock = False  # a SYNC (again): it leads
+            self._last_sync_ns = self.clock.now_ns()
         for port in self.ports.values():
             if self.faults.starting(port.name, "reboot", tick):
                 port.firmware.boot()
@@ -267,9 +299,10 @@ class NodesHost:
         self.sync_locked = True
 
     def on_timer(self) -> None:
-        """Real time: the nodes' own 20 ms tick (physics, watchdogs, heartbeats)."""
+        """The nodes' own 20 ms tick (physics, watchdogs, heartbeats): real time, or lock-step boards
+        whose controller fell silent."""
         self.own_tick += 1
-        now = self.now_ms()
+        now = self._node_time_ms(self.own_tick)
         for port in self.ports.values():
             if not self.faults.frozen(port.name, self.last_sync_tick):
                 port.firmware.on_tick(now)
@@ -403,13 +436,16 @@ class NodesHost:
 
     def poll(self, timeout_s: float) -> bool:
         """Handle every frame that arrives within ``timeout_s`` (then whatever is queued); real time
-        also runs the nodes' timer. Returns whether a frame was handled."""
+        (or a silent controller's lock-step boards) also runs the nodes' timer. Returns whether a
+        frame was handled."""
         handled = False
         deadline = self.clock.now_ns() + int(timeout_s * 1e9)
         while True:
             now = self.clock.now_ns()
             wait_until = deadline
-            if not self.lockstep:
+            if (look_again := self._watch_silence(now)) is not None:
+                wait_until = min(deadline, look_again)
+            if self.own_clock:
                 next_tick = self._next_tick_ns()
                 if now >= next_tick:
                     stalled_ns = now - max(next_tick, self._physics_end_ns)
@@ -469,6 +505,8 @@ class NodesHost:
             "syncs": self.stats.syncs,
             "physics_ticks": self.stats.physics_ticks,
             "overruns": self.stats.overruns,
+            "silences": self.stats.silences,
+            "own_clock": self.own_clock,
             "stalls": [list(x) for x in self.stats.stalls],
             "receiver": self.rx.stats.as_dict(),
             "faults_injected": dict(self.faults.counts),
@@ -492,8 +530,9 @@ class NodesHost:
             for n, v in s["nodes"].items()
         )
         rx = s["receiver"]
+        mode = f"{s['mode']} (own clock)" if self.lockstep and self.own_clock else s["mode"]
         return (
-            f"nodes {s['mode']} tick {s['last_sync_tick']} sim {s['sim_time_s']:.1f} s | {nodes} | "
+            f"nodes {mode} tick {s['last_sync_tick']} sim {s['sim_time_s']:.1f} s | {nodes} | "
             f"rx {rx['accepted']} ok {rx['rejected']} rejected | tx {s['frames_sent']}"
             + (f" | fall: {s['fall']}" if s["fall"] else "")
         )

@@ -128,7 +128,7 @@ def test_the_sweep_is_refused_on_a_real_bus_without_the_flag_before_the_bus_open
     for argv in (["--mode", "sweep"], ["--mode", "sweep", "--peer", "none", "--ticks", "5"]):
         assert main(["buscheck", "--bus", "socketcan", "--channel", channel, *argv]) == 1
         err = capsys.readouterr().err
-        assert err.startswith(f"aider-exo: error: refused: the sweep commands every joint in TRACK over its full range") \
+        assert err.startswith("aider-exo: error: refused: the sweep commands every joint in TRACK over its full range") \
             and f"on socketcan:{channel} that moves the motors" in err and "--i-understand-motors-will-move" in err
         assert err.count("\n") == 1
     # With the flag it goes as far as opening the bus (here refused by the test itself).

@@ -285,8 +285,8 @@ class _SharedCpuClock:
 @pytest.mark.parametrize(("ms_off", "ms_on", "stalled"), [(25, 1, True), (1, 25, False)])
 def test_a_real_time_tick_that_overran_off_the_cpu_is_a_stall(ms_off, ms_on, stalled):
     """A tick that overran its 20 ms while another process had the CPU is reported as a stall (the
-    real-time walk tests retry a walk that such overruns stopped); one that overran by its own work
-    is not."""
+    real-time smoke walks accept a stop that such overruns explain); one that overran by its own
+    work is not."""
     from controller.loop import RealtimeLoop
 
     clock = _SharedCpuClock()

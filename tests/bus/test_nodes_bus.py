@@ -656,3 +656,82 @@ def test_a_fall_is_reported_with_the_sync_tick_and_time_it_happened(ctl):
     assert status["fall"] and fell_at is not None, status["fall"]
     assert status["fall_at"] == {"sync_tick": fell_at[0], "sim_time_s": fell_at[1]}
     assert status["fall_at"]["sync_tick"] < ctl.tick
+
+
+def test_lockstep_boards_take_their_own_clock_when_the_controller_falls_silent():
+    """``silence_s``: lock-step boards whose controller sends no SYNC for that long run on their own
+    20 ms timer from the last SYNC's tick (a crashed controller: the command watchdog quick-stops
+    them after ``command_timeout_ticks`` of their own ticks), and the next SYNC leads again. Without
+    it they wait for the SYNC however long it takes."""
+    from nodes.host import NodesError
+    from protocol.clock import ManualClock
+
+    ms = 1_000_000
+    cfg = with_overrides(BASE, {"bus.channel": "nodes-silence"})
+    with pytest.raises(NodesError, match="lock-step only"):
+        NodesHost(cfg, None, lockstep=False, silence_s=1.0)
+    for silence_s in (None, 1.0):
+        clock = ManualClock()
+        with virtual_bus("nodes-silence") as ctl_bus, virtual_bus("nodes-silence") as node_bus:
+            host = NodesHost(cfg, node_bus, lockstep=True, seed=1, clock=clock, silence_s=silence_s)
+            tx, rx = Transmitter(host.codec), Receiver(Codec())
+
+            def heard() -> list[tuple[int, str, int]]:  # (ms since the last SYNC, message, EMCY code or -1)
+                out = []
+                while (m := ctl_bus.recv(timeout=0)) is not None:
+                    r = rx.receive(m)
+                    if isinstance(r, Decoded):
+                        out.append((round((clock.now_ns() - sync_ns) / ms), r.name, r.values.emcy_code if r.name.startswith("EMCY") else -1))
+                return out
+
+            try:
+                host.boot()
+                ctl_bus.send(tx.message("NMT_COMMAND", {"command": int(NmtCommand.START), "node_id": 0}))
+                for tick in range(5):
+                    clock.advance(20 * ms)
+                    for j in JOINTS:
+                        ctl_bus.send(tx.message(f"JOINT_COMMAND_{j}", {
+                            "mode": int(JointMode.HOLD), "position_setpoint_rad": 0.0, "velocity_ff_rad_s": 0.0,
+                            "torque_ff_Nm": 0.0, "torque_limit_Nm": 80.0}))
+                    ctl_bus.send(tx.message("CONTROLLER_HEARTBEAT", {"gait_state": int(GaitState.STAND)}))
+                    ctl_bus.send(tx.message("SYNC", {"tick": tick}))
+                    host.poll(0.0)
+                sync_ns = clock.now_ns()
+                heard()
+                assert host.stats.physics_ticks == 5
+                frames = []
+                for _ in range(3000):  # 3 s of silence, polled every millisecond
+                    clock.advance(ms)
+                    host.poll(0.0)
+                    frames += heard()
+                if silence_s is None:
+                    assert frames == [] and host.stats.physics_ticks == 5 and not host.own_clock
+                    continue
+                # Own ticks 5, 6, 7, ... from 1 s on, one each 20 ms; the watchdog's third tick without a command.
+                assert host.own_clock and host.stats.silences == 1
+                assert host.stats.physics_ticks == 5 + 101  # own ticks 5..105, at 1000..3000 ms
+                emcys = [(t, name) for t, name, code in frames if code == EmcyCode.COMMAND_TIMEOUT]
+                assert sorted(name for _, name in emcys) == sorted(f"EMCY_{j}" for j in JOINTS)
+                assert {t for t, _ in emcys} == {1040}, emcys  # tick 7: the third without a command
+                heartbeats = [t for t, name, _ in frames if name.startswith("HEARTBEAT")]
+                assert heartbeats[0] == 1020 and len(heartbeats) == 80  # one node per tick, none in ticks 0 mod 5
+                # A SYNC again: it leads (one physics tick), the drives report the quick stop, and no
+                # tick of the boards' own comes without a SYNC.
+                ctl_bus.send(tx.message("SYNC", {"tick": 0}))
+                host.poll(0.0)
+                assert not host.own_clock and host.stats.physics_ticks == 107
+                statuses = [r for r in (rx.receive(m) for m in _drain(ctl_bus)) if isinstance(r, Decoded) and r.name.startswith("JOINT_STATUS")]
+                assert len(statuses) == 4 and {DriveState(r.values.drive_state) for r in statuses} == {DriveState.FAULT}
+                for _ in range(500):
+                    clock.advance(ms)
+                    host.poll(0.0)
+                assert host.stats.physics_ticks == 107 and host.status()["silences"] == 1
+            finally:
+                host.close()
+
+
+def _drain(bus: can.BusABC) -> list[can.Message]:
+    out = []
+    while (m := bus.recv(timeout=0)) is not None:
+        out.append(m)
+    return out

@@ -118,7 +118,7 @@ def test_controller_walks_ten_gait_cycles_over_vcan0_with_the_nodes_as_a_second_
 # boards are one process, so any board's late answer shows that process was not running.
 # ENCODER_STUCK too: a nodes process stalled 60 ms sends one encoder value for three ticks (seen
 # once in the sandbox on 2026-12-05: ENCODER_STUCK(RIGHT_KNEE) at tick 154, a nodes stall of 59.6
-# ms at tick 154); it is retried only with such a stall as evidence, as the others are. Which kinds
+# ms at tick 154); it passes only with such a stall as evidence, as the others do. Which kinds
 # a stall can explain is the kinds' own data (controller/faults.py, docs/FAULTS.md;
 # tests/support/processes.py's stall_can_explain).
 

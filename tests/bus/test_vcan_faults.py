@@ -4,18 +4,18 @@
 while ``candump -L`` records every case; ticks are read from the capture (a SYNC carries the
 controller's tick, the nodes' frames of that tick follow it; the nodes' heartbeats, one node per
 tick in the DBC's phase, number the nodes' own ticks) and from the processes' JSON summaries.
-No assertion is on a wall-clock duration except the one marked in
-``test_killed_controller_nodes_quick_stop_and_hold``, which is time-based by nature. A real-time
-walk that the sandbox disrupts before the fault is injected (a stall of the guest: overruns or
-missing statuses, HOLD or FAULT as designed) is started again once (``_mid_swing``).
+Every walk runs in lock-step (a controller tick waits for the nodes' frames), so no stall of the
+machine can disrupt one: each case runs once. No assertion is on a wall-clock duration except the
+one marked in ``test_killed_controller_nodes_quick_stop_and_hold``, which is time-based by nature.
 
-* F1, real time: SIGKILL the nodes process mid-swing; the controller latches FAULT with
-  NODE_LOST within 4 ticks of the last node frame and sends only HOLD commands from then on.
-* F20, real time: SIGKILL the controller mid-swing; every node sends EMCY 0x8250 (command
-  timeout) within 4 of its own ticks, quick-stops and stays, and the HHEA stays upright.
+* F1: SIGKILL the nodes process mid-swing; the controller latches FAULT with NODE_LOST within
+  4 ticks of the last node frame and sends only HOLD commands from then on.
+* F20: SIGKILL the controller mid-swing; the lock-step boards (``--silence``) take their own clock
+  once it has been silent for ``SILENCE_S``, and every node sends EMCY 0x8250 (command timeout)
+  within 4 of its own ticks, quick-stops and stays; the HHEA stays upright.
 * F22/I4: a controller restarted against those latched nodes starts and stays in FAULT (150
   ticks, no TRACK command, no walking); with ``--reset`` (the operator's reset) it clears the
-  nodes, waits out the FSM's 25 healthy ticks and stands, and still does not walk.
+  nodes, waits out the FSM's 25 healthy ticks and stands to the end, and still does not walk.
 * Lock-step walks of 3 gait cycles while cangen (can-utils) floods vcan0 as a third process:
   - frames that cannot be ours (random standard IDs and data at a length none of our messages
     has, random extended frames, random remote frames): the walk completes with no FAULT or HOLD,
@@ -53,7 +53,7 @@ from protocol.e2e import Receiver
 from protocol.enums import DriveState, EmcyCode, GaitState, JointMode, NmtCommand, NmtState, NodeError
 from tests.conftest import ROOT
 from tests.support.capture import PROBE_ID, candump, decode_capture, recorded
-from tests.support.processes import AIDER, fsm_transitions, stall_can_explain
+from tests.support.processes import AIDER, fsm_transitions
 
 pytestmark = pytest.mark.vcan
 
@@ -158,7 +158,7 @@ def _gait_state(frame_id: int, data: bytes) -> GaitState | None:
 
 
 class _NotWalking(Exception):
-    """The walk was disrupted before the fault was injected: nothing is measured yet."""
+    """The walk held or faulted before the fault was injected."""
 
 
 class _Swings:
@@ -170,8 +170,6 @@ class _Swings:
     def __call__(self, frame_id: int, data: bytes) -> bool:
         state = _gait_state(frame_id, data)
         if state is not None:
-            # Before the fault is injected: a stalled guest (its one CPU shared with the busy host)
-            # can make the controller hold or fault; then this run cannot measure anything.
             if state in (GaitState.HOLD, GaitState.FAULT):
                 raise _NotWalking(f"the controller went to {state.name} at swing {self.seen}")
             if state in SWINGS and state != self.previous:
@@ -214,8 +212,10 @@ def _sync_ticks(decoded: list[Decoded | None]) -> list[int]:
     return out
 
 
-ATTEMPTS = 2
-SECOND_SWING_S = 120  # a hang guard: the second swing came 10-25 s after the controller's start in the sandbox
+SECOND_SWING_S = 300  # a hang guard: the second swing came 10-25 s after the controller's start in the sandbox
+#: the nodes' ``--silence`` in the crash scenario: lock-step boards whose controller sent no SYNC for
+#: this long run on their own clock. A lock-step tick took up to 0.6 s in the sandbox with the host busy.
+SILENCE_S = 5.0
 
 
 def _why(ctl: subprocess.Popen) -> list[str]:
@@ -238,54 +238,35 @@ def _steady_patient_config(folder: Path) -> Path:
 
 
 @contextmanager
-def _mid_swing(vcan0: str, tmp: Path, name: str, nodes_extra: tuple[str, ...] = (), *, lockstep: bool = False):
-    """candump recording ``<tmp>/<name>-<attempt>.log``, ``aider-exo nodes`` booted and
-    ``aider-exo controller --walk``, both in real time (``lockstep``: both in lock-step, where no
-    stall of the machine can disrupt the walk: one attempt, any disruption fails), until 0.6 s into
-    the second swing (of 1.2 s);
-    yields (nodes, controller, tail of the capture, its path) there (at 0.3 s the patient, held by
-    the quick stop, sometimes stood off its sticks, 5-35 N, and I4 rightly refused the reset of
-    the F22 test: reproduced on the host, killed 2-8 ticks into a swing; 10-55 ticks in, the sticks
-    carried 80-220 N); candump stops at the end of
-    the block, the processes are the caller's (killed here on an error). A walk disrupted before
-    that point (in the sandbox a stall of the guest, whose one CPU the busy host shares, makes
-    overruns or missing statuses: HOLD or FAULT, as designed; once the walk stalled in double
-    support) measures nothing yet: it is tried again with new processes, ATTEMPTS times in all.
+def _mid_swing(vcan0: str, tmp: Path, name: str, nodes_extra: tuple[str, ...] = ()):
+    """candump recording ``<tmp>/<name>.log``, ``aider-exo nodes --lockstep`` booted and
+    ``aider-exo controller --lockstep --walk`` until 0.6 s into the second swing (of 1.2 s); yields
+    (nodes, controller, tail of the capture, its path) there. In lock-step a controller tick waits
+    for the nodes' frames, so no stall of the machine can disrupt the walk: one attempt, and a HOLD
+    or FAULT before that point fails. candump stops at the end of the block; the processes are the
+    caller's (killed here on an error).
 
-    The steady patient: these tests are of the fault protocol. Held mid-swing by the quick stop,
-    the noisy one (the default) stood with one stick at 6-8 N in 2 of about 9 runs (2026-12-05/06)
-    and I4 rightly refused the reset the F22 test needs."""
-    nodes_extra = ("--config", str(_steady_patient_config(tmp)), *nodes_extra, *(("--lockstep",) if lockstep else ()))
-    reasons, stalls = [], 0
-    for attempt in range(1 if lockstep else ATTEMPTS):
-        log = tmp / f"{name}-{attempt}.log"
-        nodes = ctl = None
-        try:
-            with candump(vcan0, log):
-                try:
-                    nodes = _boot(vcan0, log, *nodes_extra)
-                    ctl = _controller(vcan0, "--walk", *(("--lockstep",) if lockstep else ()))
-                    tail = _Tail(log)
-                    _wait(tail, _Swings(2), "the second swing", (nodes, ctl), SECOND_SWING_S, _NotWalking)
-                    _wait(tail, _Count({SYNC_ID}, 30), "0.6 s into the swing", (nodes, ctl))
-                except _NotWalking as e:
-                    why = _why(ctl)
-                    if lockstep:
-                        pytest.fail(f"the lock-step walk stopped before the fault: {e}: {why}")
-                    stalls += bool(why) and all(stall_can_explain(w.split(": ", 2)[-1]) for w in why)
-                    reasons.append(f"attempt {attempt + 1}: {e}: {why}")
-                    _reap(nodes, ctl)
-                    continue
-                if reasons:
-                    print(f"\n(walk disrupted before the fault was injected: {reasons})")
-                yield nodes, ctl, tail, log
-            return
-        except BaseException:
-            _reap(nodes, ctl)
-            raise
-    if stalls == ATTEMPTS:  # every walk stopped by a stall of the guest: the machine gave no CPU, nothing measured
-        pytest.skip(f"every walk was stopped by a stall of the machine before the fault: {reasons}")
-    pytest.fail(f"the walk never reached its second swing undisturbed: {reasons}")
+    0.6 s, not 0.3: at 0.3 s the patient, held by the quick stop, sometimes stood off its sticks
+    (5-35 N) and I4 rightly refused the F22 test's reset (killed 2-8 ticks into a swing; 10-55 ticks
+    in, the sticks carried 80-220 N). The steady patient (one stick placement every step): these
+    tests are of the fault protocol; held mid-swing, the noisy one (the default) stood with one
+    stick at 6-8 N in 2 of about 9 runs."""
+    log = tmp / f"{name}.log"
+    nodes = ctl = None
+    try:
+        with candump(vcan0, log):
+            nodes = _boot(vcan0, log, "--lockstep", "--config", str(_steady_patient_config(tmp)), *nodes_extra)
+            ctl = _controller(vcan0, "--walk", "--lockstep")
+            tail = _Tail(log)
+            try:
+                _wait(tail, _Swings(2), "the second swing", (nodes, ctl), SECOND_SWING_S)
+            except _NotWalking as e:
+                pytest.fail(f"the lock-step walk stopped before the fault: {e}: {_why(ctl)}")
+            _wait(tail, _Count({SYNC_ID}, 30), "0.6 s into the swing", (nodes, ctl))
+            yield nodes, ctl, tail, log
+    except BaseException:
+        _reap(nodes, ctl)
+        raise
 
 
 # -- F1: the nodes process killed ---------------------------------------------------------------------
@@ -295,7 +276,7 @@ def test_killed_nodes_process_faults_the_controller_within_4_ticks_and_it_holds(
     """F1, in lock-step (a controller tick waits for the nodes' frames, so no stall of the machine
     can disrupt the walk before the kill; the fault is counted in ticks either way): the nodes
     process killed mid-swing, FAULT (NODE_LOST) within 4 ticks, HOLD commands from then on."""
-    with _mid_swing(vcan0, tmp_path, "candump", lockstep=True) as (nodes, ctl, tail, log):
+    with _mid_swing(vcan0, tmp_path, "candump") as (nodes, ctl, tail, log):
         nodes.kill()  # SIGKILL
         nodes.communicate(timeout=60)
         _wait(tail, lambda i, d: _gait_state(i, d) == GaitState.FAULT, "the controller's FAULT", (ctl,))
@@ -334,63 +315,58 @@ def test_killed_nodes_process_faults_the_controller_within_4_ticks_and_it_holds(
 # -- F20 and F22: the controller killed, then restarted -------------------------------------------------
 
 
-def _node_ticks(msgs: list[can.Message]) -> dict[int, int]:
-    """The nodes' own tick of each of their heartbeats in the capture (index -> tick). The nodes
-    share one timer and send their heartbeats one node per tick in the DBC's phase (left hip at
-    ticks 1 mod 5, ..., none at 0 mod 5), so consecutive heartbeats number the ticks between them;
-    the timestamps only choose among ticks a heartbeat period apart (an overrun skips ticks)."""
+def _own_ticks(msgs: list[can.Message], last_sync: int, tick: int) -> dict[int, int]:
+    """The nodes' own tick of each of their heartbeats after the controller fell silent (index ->
+    tick). The lock-step boards take their own clock ``SILENCE_S`` after the last SYNC (frame
+    ``last_sync``, of ``tick``), at that tick + 1, and send one heartbeat per tick in the DBC's phase
+    (left hip at ticks 1 mod 5, ..., none at 0 mod 5), so consecutive heartbeats number the ticks
+    between them; the timestamps only choose among ticks a heartbeat period apart (an overrun
+    skips ticks)."""
     out: dict[int, int] = {}
-    prev_tick = prev_ts = None
-    for i, m in enumerate(msgs):
+    prev_ts = None
+    for i in range(last_sync + 1, len(msgs)):
+        m = msgs[i]
         phase = HEARTBEAT_PHASE.get(m.arbitration_id)
-        if phase is None or m.is_extended_id:
-            continue
-        if prev_tick is None:
-            tick = phase
-        else:
-            k = (phase - prev_tick) % HEARTBEAT_PERIOD or HEARTBEAT_PERIOD
+        if phase is None or m.is_extended_id or m.timestamp - msgs[last_sync].timestamp < SILENCE_S / 2:
+            continue  # not a heartbeat, or the last SYNC's own (lock-step)
+        k = (phase - tick) % HEARTBEAT_PERIOD or HEARTBEAT_PERIOD
+        if prev_ts is not None:  # the silence before the first is not the boards' time
             elapsed = (m.timestamp - prev_ts) / TICK_S
             k += HEARTBEAT_PERIOD * max(0, round((elapsed - k) / HEARTBEAT_PERIOD))
-            tick = prev_tick + k
+        tick += k
         out[i] = tick
-        prev_tick, prev_ts = tick, m.timestamp
+        prev_ts = m.timestamp
     return out
 
 
 HEARTBEAT_LAG = 0.15  # ticks: a node's heartbeat goes out after its tick's physics step (about 3 ms in)
 
 
-def _tick_at(index: int, msgs: list[can.Message], hb_ticks: dict[int, int]) -> int:
-    """The nodes' tick in progress when frame ``index`` was on the bus: the tick of the heartbeat
+def _tick_at(index: int, msgs: list[can.Message], own: dict[int, int]) -> int:
+    """The nodes' own tick in progress when frame ``index`` was on the bus: the tick of the heartbeat
     before it, plus the ticks begun since by the time elapsed (the fifth tick of each heartbeat
     period has no heartbeat). An EMCY goes out right after its tick's heartbeat: the same tick."""
-    before = max(i for i in hb_ticks if i < index)
+    before = max(i for i in own if i < index)
     elapsed = (msgs[index].timestamp - msgs[before].timestamp) / TICK_S
-    return hb_ticks[before] + math.floor(elapsed + HEARTBEAT_LAG)
+    return own[before] + math.floor(elapsed + HEARTBEAT_LAG)
 
 
 @pytest.fixture(scope="module")
 def crash():
-    """The F20/F22 scenario, run once by the first test that asks (with the vcan0 fixture's gate):
-    nodes and controller walking in real time, the controller SIGKILLed mid-swing, the nodes
-    left alone for 2.5 s, a controller started again against them for 150 ticks without and then
-    with ``--reset`` (that phase run again when a stall disrupted it: _reset_disrupted), the nodes
-    stopped; candump records each phase."""
+    """The F20/F22 scenario, run once by the first test that asks (with the vcan0 fixture's gate),
+    all in lock-step: nodes (``--silence``) and controller walking, the controller SIGKILLed
+    mid-swing, the nodes left alone until they have run 2.5 s on their own clock, a controller
+    started again against them for 150 ticks without and then with ``--reset``, the nodes stopped;
+    candump records each phase."""
     cache: dict = {}
 
     def run(vcan0: str, tmp: Path) -> dict:
-        if "skip" in cache:
-            pytest.skip(cache["skip"])  # every walk stopped by a stall (_mid_swing): a skip for each test
         if "error" in cache:
             pytest.fail(cache["error"])  # not run again for the next test
         if cache:
             return cache
         try:
             scenario(vcan0, tmp)
-        except pytest.skip.Exception as e:
-            cache.clear()
-            cache["skip"] = e.msg
-            raise
         except BaseException as e:
             cache.clear()
             cache["error"] = f"the scenario failed: {e!r}"[:2000]
@@ -402,27 +378,18 @@ def crash():
         logs = {phase: tmp / f"{phase}.log" for phase in ("restart", "reset")}
         nodes = ctl = None
         try:
-            with _mid_swing(vcan0, tmp, "kill", ("--truth", str(truth))) as (nodes, ctl, tail, logs["kill"]):
+            nodes_extra = ("--truth", str(truth), "--silence", str(SILENCE_S))
+            with _mid_swing(vcan0, tmp, "kill", nodes_extra) as (nodes, ctl, tail, logs["kill"]):
                 ctl.kill()  # SIGKILL
                 ctl.communicate(timeout=60)
                 cache["killed_rc"] = ctl.returncode
-                _wait(tail, _Count(set(EMCY_IDS), 4), "the nodes' EMCYs", (nodes,), timeout_s=60)
-                # 2.5 s of the nodes alone, counted in their own ticks (4 heartbeats per 5 ticks)
+                _wait(tail, _Count(set(EMCY_IDS), 4), "the nodes' EMCYs", (nodes,), timeout_s=120)
+                # 2.5 s of the nodes alone on their own clock (4 heartbeats per 5 ticks)
                 _wait(tail, _Count(set(HEARTBEAT_PHASE), 100), "2.5 s of quick stop", (nodes,), timeout_s=120)
-            with candump(vcan0, logs["restart"]):
-                ctl = _controller(vcan0, "--ticks", "150")
-                cache["restart"] = _summary(ctl)
-            cache["reset_retried"] = []
-            for attempt in range(ATTEMPTS):
-                logs["reset"] = tmp / f"reset-{attempt}.log"
-                with candump(vcan0, logs["reset"]):
-                    ctl = _controller(vcan0, "--ticks", "150", "--reset")
-                    cache["reset"] = _summary(ctl)
-                why = _reset_disrupted(cache["reset"], logs["reset"])
-                if not why:
-                    break
-                cache["reset_retried"].append(f"attempt {attempt + 1}: {why}")
-                print(f"\n(F22 reset phase disrupted by a stall, run again: {why})")
+            for phase, extra in (("restart", ()), ("reset", ("--reset",))):
+                with candump(vcan0, logs[phase]):
+                    ctl = _controller(vcan0, "--lockstep", "--ticks", "150", *extra)
+                    cache[phase] = _summary(ctl)
             cache["nodes"] = _stop(nodes)
         finally:
             _reap(nodes, ctl)
@@ -432,35 +399,10 @@ def crash():
     return run
 
 
-def _reset_disrupted(summary: dict, log: Path) -> str | None:
-    """Why a reset phase that never stood is explained by a stall of the machine, or None.
-
-    Between the nodes' FAULT_RESET and the FSM's reset (25 healthy ticks later) a stall of the
-    guest that kept the controller off the CPU for 3 of the nodes' ticks makes them quick-stop
-    again (their command watchdog, as designed: F20); the one reset of ``--reset`` is spent and
-    the FSM rightly stays in FAULT. Seen once in CI (2026-12-04), not reproduced in 5 runs. Only
-    that, with the stall measured or a node's new watchdog EMCY after its clear, counts here."""
-    if any(e.endswith("-> STAND: operator reset") for e in summary["events"]):
-        return None
-    decoded, _ = decode_capture(log)
-    cleared, relatched = set(), []
-    for t, d in zip(_sync_ticks(decoded), decoded):
-        if d.message.family != "EMCY":
-            continue
-        if d.values.emcy_code == EmcyCode.NO_ERROR:
-            cleared.add(d.message.sender)
-        elif d.message.sender in cleared and d.values.emcy_code in (EmcyCode.COMMAND_TIMEOUT, EmcyCode.HEARTBEAT_LOST):
-            relatched.append(f"{d.message.sender} {EmcyCode(d.values.emcy_code).name} after SYNC {t}")
-    resets = summary["resets"]
-    stalls = [x for x in summary["stalls"] if resets and x[0] >= resets[0]]  # after the nodes' FAULT_RESET
-    if not (relatched or stalls):
-        return None
-    return f"no operator reset to STAND; nodes quick-stopped again: {relatched}; stalls after the first reset (tick, ms) {stalls}"
-
-
 def test_killed_controller_nodes_quick_stop_and_hold(vcan0, tmp_path_factory, crash):
     """F20: every node sends EMCY 0x8250 within 4 of its own ticks after the controller's last
-    frame, quick-stops and stays; the HHEA stays upright."""
+    frame, quick-stops and stays; the HHEA stays upright. The lock-step boards' own clock starts
+    ``SILENCE_S`` after the last SYNC (``--silence``), at the tick after it."""
     r = crash(vcan0, tmp_path_factory.mktemp("crash"))
     assert r["killed_rc"] == -signal.SIGKILL
     msgs = [m for m in can.CanutilsLogReader(str(r["logs"]["kill"])) if m.arbitration_id != PROBE_ID]
@@ -473,29 +415,29 @@ def test_killed_controller_nodes_quick_stop_and_hold(vcan0, tmp_path_factory, cr
     assert {d.message.sender for _, d in emcys} == set(NODES)  # one each, all after the kill
     assert all(i > last_ctl for i, _ in emcys)
     assert len(emcys) == len(NODES), [(d.name, hex(d.values.emcy_code)) for _, d in emcys]
-    hb_ticks = _node_ticks(msgs)
-    last_ctl_tick = _tick_at(last_ctl, msgs, hb_ticks)  # the nodes' tick in which the controller's last frame came
-    ran, phases = set(hb_ticks.values()), set(HEARTBEAT_PHASE.values())
+    last_sync = max(i for i, d in enumerate(decoded) if d.name == "SYNC")
+    last_tick = decoded[last_sync].values.tick  # the nodes' last tick in lock-step
+    own = _own_ticks(msgs, last_sync, last_tick)
+    ran, phases = set(own.values()), set(HEARTBEAT_PHASE.values())
     figures = []
     for i, d in emcys:
         assert d.values.emcy_code == EmcyCode.COMMAND_TIMEOUT and d.values.error_register == 0x11, d
-        # Tick-based: the ticks the nodes ran after the one in which the controller's last frame
-        # came, to the EMCY's, numbered by their heartbeats (the tick in which the last command
-        # arrived, then 3 without one: 4; 3 when the tick's commands had come before its SYNC, the
-        # last frame). A tick the nodes skipped (an overrun re-aligns their timer) runs no watchdog
-        # and sends no heartbeat: one whose heartbeat is missing is not counted.
-        span = range(last_ctl_tick + 1, _tick_at(i, msgs, hb_ticks) + 1)
+        # Tick-based: the nodes' own ticks after the last SYNC's to the EMCY's, numbered by their
+        # heartbeats (3 without a command; 4 when the next tick's commands came before the kill,
+        # the last frames). A tick the nodes skipped (an overrun re-aligns their timer) runs no
+        # watchdog and sends no heartbeat: one whose heartbeat is missing is not counted.
+        span = range(last_tick + 1, _tick_at(i, msgs, own) + 1)
         skipped = [t for t in span if t % HEARTBEAT_PERIOD in phases and t not in ran]
         node_ticks = len(span) - len(skipped)
-        # Time-based by nature (the nodes send EMCYs on their own timer, no SYNC comes): the EMCY's
-        # time after the controller's last frame in ticks of 20 ms, in the guest; one tick of slack
-        # for the scheduling of three processes on its one CPU.
-        dt = msgs[i].timestamp - msgs[last_ctl].timestamp
+        # Time-based by nature (the boards' own timer): the EMCY's time after the boards took their
+        # own clock (the silence after the last SYNC) in ticks of 20 ms, in the guest; one tick of
+        # slack for the scheduling of three processes on its one CPU.
+        dt = msgs[i].timestamp - msgs[last_sync].timestamp - SILENCE_S
         figures.append((d.message.sender, node_ticks, len(skipped), round(dt * 1000, 1)))
         assert 0 < node_ticks <= BOUND_TICKS, figures
-        assert math.ceil(dt / TICK_S) <= BOUND_TICKS + 1, figures
+        assert 0 < dt and math.ceil(dt / TICK_S) <= BOUND_TICKS + 1, figures
         assert d.values.detail == COMMAND_TIMEOUT_TICKS, d  # the node's own count of ticks without a command
-    print(f"\nF20: EMCY 0x8250 after the controller's last frame (node, own ticks, skipped, ms): {figures}")
+    print(f"\nF20: EMCY 0x8250 after the last SYNC (node, own ticks, skipped, ms after the {SILENCE_S} s silence): {figures}")
     # After the EMCY the nodes run on (heartbeats, OPERATIONAL) and send nothing else: no SYNC comes.
     after = decoded[emcys[-1][0] + 1:]
     assert after and {d.message.family for d in after} == {"HEARTBEAT"}, Counter(d.name for d in after)
@@ -559,51 +501,39 @@ def test_restarted_controller_leaves_fault_only_on_the_operators_reset_and_does_
     """F22/I4 with ``--reset``: FAULT_RESET clears the nodes, the FSM stands after 25 healthy ticks
     on a second reset request, and without --walk it stands to the end."""
     r = crash(vcan0, tmp_path_factory.mktemp("crash"))
-    if len(r["reset_retried"]) == ATTEMPTS:
-        pytest.skip(f"every reset phase was disrupted by a stall of the machine: {r['reset_retried']}")
     s = r["reset"]
     transitions = fsm_transitions(s["events"])
     decoded, _ = decode_capture(r["logs"]["reset"])
-    print(f"\nF22 with --reset: resets at ticks {s['resets']}, {transitions}, commands {dict(_commands(decoded))}"
-          f"{', after ' + '; '.join(r['reset_retried']) if r['reset_retried'] else ''}")
+    print(f"\nF22 with --reset: resets at ticks {s['resets']}, {transitions}, commands {dict(_commands(decoded))}")
     assert s["ticks"] == 150
     sticks = [(d.name, round(d.values[0])) for d in decoded if d.message.family == "STICK"][-4:]  # force first
     ticks = _sync_ticks(decoded)
     emcys = [(t, d.message.sender, EmcyCode(d.values.emcy_code).name) for t, d in zip(ticks, decoded) if d.message.family == "EMCY"]
-    assert [(a, b) for _, a, b, _ in transitions[:2]] == [("INIT", "FAULT"), ("FAULT", "STAND")], (
+    # Then STAND to the end (in lock-step no stall of the machine can stop a frame).
+    assert [(a, b) for _, a, b, _ in transitions] == [("INIT", "FAULT"), ("FAULT", "STAND")], (
         transitions, s["resets"], f"last stick forces {sticks} (I4 resets only with both sticks loaded)",
-        f"EMCYs (SYNC tick, node, code) {emcys}", f"stalls (tick, ms) {s['stalls']}", r["reset_retried"],
-        f"fault causes {s['fault_causes']}")
+        f"EMCYs (SYNC tick, node, code) {emcys}", f"fault causes {s['fault_causes']}")
+    assert s["final_state"] == "STAND"
     assert FaultKind.of(transitions[0][3]) is FaultKind.DRIVE_FAULT and transitions[1][3] == OPERATOR_RESET
     assert len(s["resets"]) == 2, s["resets"]  # the nodes' FAULT_RESET, then the FSM's reset once they were healthy
     first_reset, fsm_reset = s["resets"]
     assert transitions[1][0] == fsm_reset  # FAULT left in the tick of the reset, not before
     assert fsm_reset - first_reset >= 25  # I4: the nodes healthy for 25 ticks first
     assert s["steps"] == [] and set(_commands(decoded)) == {"HOLD"}  # never walks on its own
-    # Then STAND to the end. In the sandbox a stall of the guest (its one CPU shared with the busy
-    # host) can stop the nodes' statuses or a sensor's frames for 3 ticks or overrun the loop (a
-    # SENSOR_LOST seen once, 2026-12-03): a later HOLD or FAULT for that is the design's reaction,
-    # and it stays (the one reset is spent); nothing else may follow.
-    later = transitions[2:]
-    end = later[0][0] if later else s["ticks"]
-    assert all(t[2] in ("HOLD", "FAULT") and stall_can_explain(t[3]) for t in later), later
-    assert end - fsm_reset >= 20, later
-    assert s["final_state"] == (later[-1][2] if later else "STAND")
 
     resets = [t for t, d in zip(ticks, decoded) if d.name == "NMT_COMMAND" and d.values.command == NmtCommand.FAULT_RESET]
     assert resets == s["resets"]
-    # Each node answers the first FAULT_RESET with EMCY NO_ERROR and reports its drive out of FAULT,
-    # in the tick of the reset or the next, or up to 3 ticks later when a stall of the guest held
-    # the nodes' process (seen once: at first_reset + 4 in the capture's SYNC ticks, 2026-12-03).
+    # Each node answers the first FAULT_RESET with EMCY NO_ERROR in the tick of the reset, and
+    # reports its drive out of FAULT from the next on.
     cleared = [(t, d.message.sender) for t, d in zip(ticks, decoded)
                if d.message.family == "EMCY" and d.values.emcy_code == EmcyCode.NO_ERROR]
     assert sorted(n for _, n in cleared) == sorted(NODES)
-    assert all(first_reset <= t <= first_reset + 4 for t, _ in cleared), (first_reset, cleared)
+    assert {t for t, _ in cleared} == {first_reset}, (first_reset, cleared)
     drive = {(d.message.sender, DriveState(d.values.drive_state)) for t, d in zip(ticks, decoded)
-             if d.message.family == "JOINT_STATUS" and max(t for t, _ in cleared) < t < end}
+             if d.message.family == "JOINT_STATUS" and t > first_reset}
     assert {state for _, state in drive} == {DriveState.HOLD}
     states = [GaitState(d.values.gait_state) for t, d in zip(ticks, decoded)
-              if d.name == "CONTROLLER_HEARTBEAT" and fsm_reset < t < end]
+              if d.name == "CONTROLLER_HEARTBEAT" and t > fsm_reset]
     assert states and set(states) == {GaitState.STAND}
 
 

@@ -3,7 +3,8 @@
 Hosts the PyBullet HHEA (with the patient) and four CANopen-style node boards (left/right hip and
 knee). They boot, wait for the controller's NMT start, apply its joint commands per SYNC, report
 status and sensors per SYNC with alive counters and CRCs, and quick-stop on a lost controller.
-Lock-step: each SYNC advances the physics by one 20 ms tick. A one-line status per second goes to
+Lock-step: each SYNC advances the physics by one 20 ms tick; with ``--silence S`` a controller that
+sends no SYNC for S seconds is taken as gone and the boards run on their own clock until it is back. A one-line status per second goes to
 stderr; SIGINT or SIGTERM ends the run cleanly.
 """
 
@@ -24,6 +25,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     add_config_options(p)
     p.add_argument("--lockstep", action="store_true", help="advance the physics one tick per SYNC (default: real time)")
+    p.add_argument("--silence", type=float, metavar="S",
+                   help="lock-step: after S seconds (wall time) without a SYNC the boards run on their own 20 ms clock, "
+                        "watchdogs included, as after a crashed controller, until a SYNC comes again (default: wait for it)")
     p.add_argument("--gui", action="store_true", help="open the PyBullet window")
     p.add_argument("--seed", type=seed_type, default=0, help="seed of sensor noise, the patient and fault injection (default 0)")
     add_mode_option(p)
@@ -54,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
     with StopSignals() as stop:
         bus = open_bus(cfg.bus)
         try:
-            host = NodesHost(cfg, bus, lockstep=args.lockstep, seed=args.seed, gui=args.gui, clock=MonotonicClock())
+            host = NodesHost(cfg, bus, lockstep=args.lockstep, seed=args.seed, gui=args.gui, clock=MonotonicClock(),
+                             silence_s=args.silence)
             truth = open(args.truth, "w", encoding="utf-8") if args.truth else None
             if truth is not None:
                 host.on_sync_hook = lambda _tick: truth.write(json.dumps(host.truth(), allow_nan=True) + "\n")
