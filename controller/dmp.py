@@ -29,11 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controller.arrays import float_array
 from controller.dmp_model import (
     DmpError,
     DmpParams,
     DmpWeights,
-    _as_float_array,
     _features,
     _finite_positive,
     basis,
@@ -224,8 +224,8 @@ class Dmp:
             Duration of the movement, s (> 0); default the demonstration's.
         """
         w = self._weights
-        x0 = _as_float_array("x0", w.x0 if x0 is None else x0, shape=(self._d,))
-        goal = _as_float_array("goal", w.g if goal is None else goal, shape=(self._d,))
+        x0 = float_array(w.x0 if x0 is None else x0, "x0", DmpError, shape=(self._d,))
+        goal = float_array(w.g if goal is None else goal, "goal", DmpError, shape=(self._d,))
         tau = w.tau_s if tau_s is None else _finite_positive("tau_s", tau_s)
         self._anchors[0] = goal
         self._anchors[1] = 0.0
@@ -245,7 +245,7 @@ class Dmp:
         The goal g in the equations keeps its value and from then on relaxes towards the request
         (``tau dg/dt = alpha_g (goal - g)``).
         """
-        goal = _as_float_array("goal", goal, shape=(self._d,))
+        goal = float_array(goal, "goal", DmpError, shape=(self._d,))
         filtered = self._anchors[0] + self._anchors[1]
         self._anchors[0] = goal
         self._anchors[1] = filtered - goal

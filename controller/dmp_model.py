@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controller.arrays import float_array
+
 
 class DmpError(ValueError):
     """Invalid parameters, demonstration or state for a DMP (one-line message)."""
@@ -41,21 +43,6 @@ def _finite_positive(name: str, value: float) -> float:
     if not (math.isfinite(value) and value > 0.0):
         raise DmpError(f"{name} must be finite and > 0, got {value}")
     return value
-
-
-def _as_float_array(name: str, value, shape: tuple[int, ...] | None = None, ndim: int | None = None) -> np.ndarray:
-    """A fresh float64 copy of ``value``, checked for shape and finiteness."""
-    try:
-        array = np.array(value, dtype=np.float64)  # copy: never alias or modify the caller's data
-    except (TypeError, ValueError):
-        raise DmpError(f"{name} must be numeric") from None
-    if ndim is not None and array.ndim != ndim:
-        raise DmpError(f"{name} must have {ndim} dimension(s), got shape {array.shape}")
-    if shape is not None and array.shape != shape:
-        raise DmpError(f"{name} must have shape {shape}, got {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise DmpError(f"{name} contains non-finite values")
-    return array
 
 
 @dataclass(frozen=True)
@@ -171,11 +158,11 @@ def forcing(s, weights, centres, widths) -> np.ndarray:
     -------
     ndarray, shape (d,) for a scalar s, (m, d) for s of shape (m,)
     """
-    weights = _as_float_array("weights", weights, ndim=2)
+    weights = float_array(weights, "weights", DmpError, ndim=2)
     n = weights.shape[1]
-    centres = _as_float_array("centres", centres, shape=(n,))
-    widths = _as_float_array("widths", widths, shape=(n,))
-    s_array = _as_float_array("s", s)
+    centres = float_array(centres, "centres", DmpError, shape=(n,))
+    widths = float_array(widths, "widths", DmpError, shape=(n,))
+    s_array = float_array(s, "s", DmpError)
     if s_array.ndim > 1:
         raise DmpError(f"s must be a scalar or have shape (m,), got {s_array.shape}")
     if np.any((s_array < 0.0) | (s_array > 1.0)):
@@ -210,12 +197,12 @@ class DmpWeights:
     def __post_init__(self) -> None:
         if not isinstance(self.params, DmpParams):
             raise DmpError(f"params must be a DmpParams, got {type(self.params).__name__}")
-        weights = _as_float_array("weights", self.weights, ndim=2)
+        weights = float_array(self.weights, "weights", DmpError, ndim=2)
         d, n = weights.shape
         if n != self.params.n_basis or d < 1:
             raise DmpError(f"weights must have shape (d >= 1, {self.params.n_basis}), got {weights.shape}")
-        x0 = _as_float_array("x0", self.x0, shape=(d,))
-        g = _as_float_array("g", self.g, shape=(d,))
+        x0 = float_array(self.x0, "x0", DmpError, shape=(d,))
+        g = float_array(self.g, "g", DmpError, shape=(d,))
         for name, array in (("weights", weights), ("x0", x0), ("g", g)):
             array.setflags(write=False)
             object.__setattr__(self, name, array)
@@ -254,8 +241,8 @@ def fit(times_s, trajectory, params: DmpParams = DmpParams()) -> DmpWeights:
     """
     if not isinstance(params, DmpParams):
         raise DmpError(f"params must be a DmpParams, got {type(params).__name__}")
-    times = _as_float_array("times_s", times_s, ndim=1)
-    positions = _as_float_array("trajectory", trajectory, ndim=2)
+    times = float_array(times_s, "times_s", DmpError, ndim=1)
+    positions = float_array(trajectory, "trajectory", DmpError, ndim=2)
     if positions.shape[0] != times.shape[0]:
         raise DmpError(f"trajectory has {positions.shape[0]} samples but times_s has {times.shape[0]}")
     if times.shape[0] < 3:

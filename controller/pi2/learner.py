@@ -9,8 +9,9 @@ from typing import Any
 
 import numpy as np
 
+from controller.arrays import float_array
 from controller.pi2.rules import (
-    LearnerError, Pi2Params, as_float_array, cost_to_go, costs_to_weights, effective_weights, pi2_update, pibb_update,
+    LearnerError, Pi2Params, cost_to_go, costs_to_weights, effective_weights, pi2_update, pibb_update,
 )
 
 # An update whose theta lies outside the bounds by at most this fraction of the range is rounding
@@ -110,7 +111,7 @@ class Pi2Learner:
         self._pending: list[tuple[np.ndarray, np.ndarray]] = []  # roll-outs of ask_batch() awaiting tell_batch()
 
     def _checked_theta(self, theta: Any, name: str) -> np.ndarray:
-        t = as_float_array(theta, 1, name)
+        t = float_array(theta, name, LearnerError, ndim=1, finite=False)
         if t.shape != self._lower.shape:
             raise LearnerError(f"{name} must have shape {self._lower.shape}, got {t.shape}")
         if not np.isfinite(t).all():

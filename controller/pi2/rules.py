@@ -9,22 +9,11 @@ from typing import Any
 
 import numpy as np
 
+from controller.arrays import float_array
+
 
 class LearnerError(ValueError):
     """Invalid input to the learner or to one of its numerical functions."""
-
-
-def as_float_array(x: Any, ndim: int, name: str) -> np.ndarray:
-    try:
-        a = np.asarray(x)
-    except (TypeError, ValueError) as exc:
-        raise LearnerError(f"{name} must be numeric: {exc}") from None
-    if a.dtype.kind not in "iuf":
-        raise LearnerError(f"{name} must hold numbers, got dtype {a.dtype}")
-    a = a.astype(float, copy=False)
-    if a.ndim != ndim:
-        raise LearnerError(f"{name} must have {ndim} dimension(s), got shape {a.shape}")
-    return a
 
 
 def check_h(h: float) -> float:
@@ -89,7 +78,7 @@ def costs_to_weights(costs: Any, h: float = 10.0) -> np.ndarray:
     >>> costs_to_weights([1, 2, 3, 4]).round(6).tolist()
     [0.964328, 0.034401, 0.001227, 4.4e-05]
     """
-    c = as_float_array(costs, 1, "costs")
+    c = float_array(costs, "costs", LearnerError, ndim=1, finite=False)
     if c.size == 0:
         raise LearnerError("costs must hold at least one roll-out")
     return _column_weights(c[:, None], check_h(h))[:, 0]
@@ -111,8 +100,8 @@ def cost_to_go(step_costs: Any, terminal: Any) -> np.ndarray:
         The terminal cost is added to every step's cost-to-go. Non-finite inputs propagate
         (NaN or inf) to the entries that sum them; :func:`costs_to_weights` gives those weight 0.
     """
-    q = as_float_array(step_costs, 2, "step_costs")
-    phi = as_float_array(terminal, 1, "terminal")
+    q = float_array(step_costs, "step_costs", LearnerError, ndim=2, finite=False)
+    phi = float_array(terminal, "terminal", LearnerError, ndim=1, finite=False)
     if q.shape[0] != phi.shape[0]:
         raise LearnerError(f"step_costs has {q.shape[0]} roll-outs but terminal has {phi.shape[0]}")
     if q.shape[1] == 0:
@@ -142,7 +131,7 @@ def pi2_update(eps: Any, step_costs: Any, terminal: Any, h: float = 10.0) -> np.
         ``P(., i) = costs_to_weights(S(., i), h)``. It is a convex combination of the ``eps_k``:
         non-finite costs get weight 0 (see :func:`costs_to_weights`), so it is always finite.
     """
-    e = as_float_array(eps, 2, "eps")
+    e = float_array(eps, "eps", LearnerError, ndim=2, finite=False)
     S = cost_to_go(step_costs, terminal)
     K, N = S.shape
     if e.shape[0] != K:
@@ -179,8 +168,8 @@ def pibb_update(thetas: Any, costs: Any, h: float = 10.0) -> np.ndarray:
     numpy.ndarray, shape (p,)
         ``sum_k P_k theta_k`` with ``P = costs_to_weights(costs, h)``.
     """
-    t = as_float_array(thetas, 2, "thetas")
-    c = as_float_array(costs, 1, "costs")
+    t = float_array(thetas, "thetas", LearnerError, ndim=2, finite=False)
+    c = float_array(costs, "costs", LearnerError, ndim=1, finite=False)
     if t.shape[0] != c.shape[0] or c.size == 0:
         raise LearnerError(f"thetas has {t.shape[0]} roll-outs but costs has {c.shape[0]}")
     if not np.isfinite(t).all():
@@ -216,7 +205,7 @@ def rollout_cost(step_forces: Any, steps_completed: int, N: int, lambda1: float,
     for name, lam in (("lambda1", lambda1), ("lambda2", lambda2)):
         if not (isinstance(lam, (int, float, np.floating, np.integer)) and math.isfinite(lam) and lam >= 0):
             raise LearnerError(f"{name} must be finite and >= 0, got {lam!r}")
-    r = as_float_array(step_forces, 1, "step_forces")
+    r = float_array(step_forces, "step_forces", LearnerError, ndim=1, finite=False)
     if not m <= r.size <= N:
         raise LearnerError(f"step_forces must hold between {m} and {N} steps, got {r.size}")
     done = r[:m]

@@ -9,8 +9,9 @@ from typing import Any
 
 import numpy as np
 
+from controller.arrays import float_array
 from controller.pi2.learner import Pi2Learner, Rejection, Rollout, UpdateRecord
-from controller.pi2.rules import LearnerError, Pi2Params, as_float_array, is_int
+from controller.pi2.rules import LearnerError, Pi2Params, is_int
 
 STATE_FORMAT = "aider-exo.pi2"
 STATE_VERSION = 1
@@ -65,7 +66,7 @@ def learner_from_state(d: dict, rng: np.random.Generator) -> Pi2Learner:
         batch = []
         for ro in d["batch"]:
             theta = learner._checked_theta(ro["theta"], "batch theta")
-            eps = as_float_array(ro["eps"], 1, "batch eps")
+            eps = float_array(ro["eps"], "batch eps", LearnerError, ndim=1, finite=False)
             if eps.shape != theta.shape or not np.isfinite(eps).all():
                 raise LearnerError("batch eps must be finite with the shape of theta")
             costs = tuple(_dec(c) for c in ro["costs"])

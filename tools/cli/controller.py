@@ -100,11 +100,13 @@ def run(args: argparse.Namespace) -> int:
             result = None
             stopping_since = None  # the tick at which a stop was asked
             reset = "armed" if args.reset else "off"  # --reset: the operator's one reset procedure, at the first FAULT
+            start = args.walk or args.cycles is not None  # the operator's one start, at the first STAND
             while args.ticks is None or loop.report.ticks < args.ticks:
                 state = session.state
                 if stopping_since is None:
-                    if (args.walk or args.cycles is not None) and state == GaitState.STAND and not core.steps:
-                        operator.start()  # once, when first standing
+                    if start and state == GaitState.STAND:
+                        operator.start()  # it holds until the FSM leaves STAND
+                        start = False
                     landed = sum(1 for step in core.steps if step.landed)
                     if stop.requested or (args.cycles is not None and landed >= 2 * args.cycles):
                         operator.stop()  # the swing in progress ends first
