@@ -8,8 +8,9 @@ Every walk runs in lock-step (a controller tick waits for the nodes' frames), so
 machine can disrupt one: each case runs once. No assertion is on a wall-clock duration except the
 one marked in ``test_killed_controller_nodes_quick_stop_and_hold``, which is time-based by nature.
 
-* F1: SIGKILL the nodes process mid-swing; the controller latches FAULT with NODE_LOST within
-  4 ticks of the last node frame and sends only HOLD commands from then on.
+* F1: SIGKILL the nodes process mid-swing; the controller latches FAULT with NODE_LOST (or
+  SENSOR_LOST of a sensor whose frame of the last tick the kill cut off) within 4 ticks of the
+  last node frame and sends only HOLD commands from then on.
 * F20: SIGKILL the controller mid-swing; the lock-step boards (``--silence``) take their own clock
   once it has been silent for ``SILENCE_S``, and every node sends EMCY 0x8250 (command timeout)
   within 4 of its own ticks, quick-stops and stays; the HHEA stays upright.
@@ -294,7 +295,15 @@ def test_killed_nodes_process_faults_the_controller_within_4_ticks_and_it_holds(
     fault_tick, source, _, cause = faults[0]
     print(f"\nF1: last node frame after SYNC {last_node_tick}, {source} -> FAULT at tick {fault_tick} "
           f"({fault_tick - last_node_tick} ticks): {cause}")
-    assert FaultKind.of(cause) is FaultKind.NODE_LOST, cause
+    if FaultKind.of(cause) is FaultKind.SENSOR_LOST:
+        # The kill split the last tick's frames: a sensor frame of that tick never came, so that
+        # sensor had been silent a tick longer than its node when the 3-tick budget ran out
+        # (seen once: PLANTAR_RIGHT, with its node's status of that tick sent).
+        sensor = cause.partition("(")[2].rstrip(")").partition(":")[0]
+        last_sensor_tick = max(t for t, d in zip(ticks, decoded) if d.name == sensor)
+        assert last_sensor_tick < last_node_tick, (cause, last_sensor_tick, last_node_tick)
+    else:
+        assert FaultKind.of(cause) is FaultKind.NODE_LOST, cause
     assert 0 < fault_tick - last_node_tick <= BOUND_TICKS
     assert source in ("SWING_LEFT", "SWING_RIGHT"), source  # killed mid-swing
     # From walking straight to FAULT (no HOLD first, nothing after: FAULT is latched).
