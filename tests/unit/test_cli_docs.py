@@ -36,7 +36,9 @@ def test_every_document_a_help_cites_is_in_the_repository():
 def test_version_names_the_installed_distribution(capsys):
     with pytest.raises(SystemExit) as done:
         main(["--version"])
-    assert done.value.code == 0 and re.fullmatch(r"aider-exo \d+\.\d+\.\d+\S*\n", capsys.readouterr().out)
+    # then how the per-tick numerics run: compiled, or interpreted and why (one line each)
+    assert done.value.code == 0 and re.fullmatch(r"aider-exo \d+\.\d+\.\d+\S*\ncompiled numerics: \d+ of \d+ modules\n(  \S+: .+\n)*",
+                                                 capsys.readouterr().out)
 
 
 def test_config_check_accepts_the_packaged_file_and_names_the_key_of_a_bad_one(tmp_path, capsys):

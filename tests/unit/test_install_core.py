@@ -88,7 +88,7 @@ def core(tmp_path_factory):
     # working tree so that nothing is built inside the checkout.
     src = tmp / "src"
     src.mkdir()
-    for name in ("pyproject.toml", "README.md"):
+    for name in ("pyproject.toml", "setup.py", "README.md"):
         shutil.copy2(ROOT / name, src / name)
     for top in {p.split(".")[0] for p in PYPROJECT["tool"]["setuptools"]["packages"]}:
         shutil.copytree(ROOT / top, src / top, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
@@ -182,3 +182,17 @@ def test_the_cli_names_the_extra_that_pyproject_installs_each_module_with():
         named |= dists & extras[extra]
     runtime = set().union(*(deps for name, deps in extras.items() if name not in ("test", "all")))
     assert runtime == named, f"in an extra but not in tools.cli.EXTRAS: {runtime - named}"
+
+
+def test_the_core_install_runs_the_numerics_compiled_where_a_compiler_is(core):
+    """The wheel `pip install .` builds carries the compiled numerics (protocol/compiled.py) and their
+    source digests; `aider-exo --version` says how each runs."""
+    import sysconfig
+
+    from protocol.compiled import MODULES
+
+    done = _run(core, "aider-exo", "--version")
+    assert done.returncode == 0, done.stderr
+    compilable = shutil.which("cc") is not None and (Path(sysconfig.get_paths()["include"]) / "Python.h").is_file()
+    want = len(MODULES) if compilable else 0
+    assert f"compiled numerics: {want} of {len(MODULES)} modules" in done.stdout, done.stdout

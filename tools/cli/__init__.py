@@ -77,6 +77,24 @@ def _version() -> str:
         return "unknown (not installed)"
 
 
+class _VersionAction(argparse.Action):
+    """``--version``: the version, and how each of the per-tick numerics' modules runs (compiled,
+    or interpreted and why: protocol/compiled.py)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from protocol.compiled import report
+
+        modules = report()
+        compiled = sum(how == "compiled" for how in modules.values())
+        lines = [f"{parser.prog} {_version()}", f"compiled numerics: {compiled} of {len(modules)} modules"]
+        lines += [f"  {name}: {how}" for name, how in modules.items() if how != "compiled"]
+        print("\n".join(lines))
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     from tools.cli.common import OneLineParser
 
@@ -85,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Walking-assistance exoskeleton controller after Chen et al., ICMA 2017.",
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks instead of one-line errors")
-    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    parser.add_argument("--version", action=_VersionAction, help="show the version and which numerics run compiled, and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for module in SUBCOMMANDS.values():
         importlib.import_module(module).add_parser(sub)
