@@ -25,14 +25,18 @@ rotation about -y), knee flexion the shank backward (about +y).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import cython
 import numpy as np
 
+if cython.compiled:
+    from cython.cimports.libc.math import cos, sin
+else:
+    from math import cos, sin
+
 from controller import kinematics as kin
-from controller.estimator import Estimate, Measurements, rot_rpy
+from controller.estimator import Estimate, Measurements
 
 GRAVITY = 9.81
 LEGS = (0, 1)
@@ -182,32 +186,79 @@ class LegLoads:
         self.body, self.leg, self.foot = body, leg, foot
         b = body
         self.total_kg = b.trunk_kg + 2 * (b.thigh_kg + b.shank_kg + b.foot_kg + b.upper_arm_kg + b.forearm_kg)
+        #: the figures the feed-forward's arithmetic reads, in the order of :data:`_SHAPE`
+        self.shape = np.array([leg.thigh_m, leg.shank_m, b.thigh_kg, b.thigh_com_m, b.shank_kg, b.shank_com_m, b.foot_kg,
+                               b.foot_com_xz_m[0], foot.half_width_m])
 
-    def gravity_and_jacobian(self, q: np.ndarray, roll: float, pitch: float, stance: tuple[bool, bool]) -> tuple[np.ndarray, list[np.ndarray]]:
+    def gravity_and_jacobian(self, q: np.ndarray, roll: float, pitch: float, stance: tuple[bool, bool]) -> tuple[np.ndarray, np.ndarray]:
         """The torques (4,) that hold each leg's segments against gravity (a stance foot's weight
         rests on the floor), and per leg the (3, 2) Jacobian of its ankle w.r.t. (hip, knee) in
-        the heading frame."""
-        b, leg = self.body, self.leg
-        rot = rot_rpy(roll, pitch)
-        torques = np.zeros(4)
-        jacobians = []
-        for i in LEGS:
-            hip, knee = float(q[2 * i]), float(q[2 * i + 1])
-            shank = hip - knee
-            d_thigh = rot @ np.array([math.cos(hip), 0.0, math.sin(hip)])  # d(thigh direction)/d hip
-            d_shank = rot @ np.array([math.cos(shank), 0.0, math.sin(shank)])  # d(shank direction)/d(hip - knee)
-            ankle_j = np.column_stack([leg.thigh_m * d_thigh + leg.shank_m * d_shank, -leg.shank_m * d_shank])
-            jacobians.append(ankle_j)
-            # d z / d (hip, knee) of each segment's CoM, times its weight
-            dz = b.thigh_kg * np.array([b.thigh_com_m * d_thigh[2], 0.0])
-            dz += b.shank_kg * np.array([leg.thigh_m * d_thigh[2] + b.shank_com_m * d_shank[2], -b.shank_com_m * d_shank[2]])
-            if not stance[i]:
-                # the foot turns with the shank about the ankle (hip: about -y, knee: about +y), its
-                # CoM taken where it is with the foot flat: (-y) x r has the z part r_x
-                fx = b.foot_com_xz_m[0]
-                dz += b.foot_kg * np.array([ankle_j[2, 0] + fx, ankle_j[2, 1] - fx])
-            torques[2 * i: 2 * i + 2] = GRAVITY * dz
-        return torques, jacobians
+        the heading frame: (2, 3, 2)."""
+        torques, jac = np.zeros(4), np.zeros((2, 3, 2))
+        _gravity_and_jacobian(self.shape, np.ascontiguousarray(q, dtype=np.float64), roll, pitch, stance[0], stance[1], torques, jac)
+        return torques, jac
+
+
+@cython.cfunc
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def _gravity_and_jacobian(shape: cython.double[::1], q: cython.double[::1], roll: cython.double, pitch: cython.double,
+                          left: cython.bint, right: cython.bint, torques: cython.double[::1],
+                          jac: cython.double[:, :, ::1]) -> cython.void:
+    """:meth:`LegLoads.gravity_and_jacobian` over scalars."""
+    thigh_m: cython.double = shape[0]
+    shank_m: cython.double = shape[1]
+    thigh_kg: cython.double = shape[2]
+    thigh_com: cython.double = shape[3]
+    shank_kg: cython.double = shape[4]
+    shank_com: cython.double = shape[5]
+    foot_kg: cython.double = shape[6]
+    foot_x: cython.double = shape[7]
+    # Ry(pitch) Rx(roll) (yaw 0: the heading frame), its rows' x and z columns (the directions'
+    # y part is 0)
+    cr: cython.double = cos(roll)
+    sr: cython.double = sin(roll)
+    cp: cython.double = cos(pitch)
+    sp: cython.double = sin(pitch)
+    r00: cython.double = cp
+    r02: cython.double = sp * cr
+    r10: cython.double = 0.0
+    r12: cython.double = -sr
+    r20: cython.double = -sp
+    r22: cython.double = cp * cr
+    i: cython.Py_ssize_t
+    hip: cython.double
+    shank: cython.double
+    ch: cython.double
+    shh: cython.double
+    cs: cython.double
+    ss: cython.double
+    tx: cython.double
+    ty: cython.double
+    tz: cython.double
+    kx: cython.double
+    ky: cython.double
+    kz: cython.double
+    dz0: cython.double
+    dz1: cython.double
+    for i in range(2):
+        hip = q[2 * i]
+        shank = hip - q[2 * i + 1]
+        ch, shh, cs, ss = cos(hip), sin(hip), cos(shank), sin(shank)
+        tx, ty, tz = r00 * ch + r02 * shh, r10 * ch + r12 * shh, r20 * ch + r22 * shh  # d(thigh direction)/d hip
+        kx, ky, kz = r00 * cs + r02 * ss, r10 * cs + r12 * ss, r20 * cs + r22 * ss  # d(shank direction)/d(hip - knee)
+        jac[i, 0, 0], jac[i, 1, 0], jac[i, 2, 0] = thigh_m * tx + shank_m * kx, thigh_m * ty + shank_m * ky, thigh_m * tz + shank_m * kz
+        jac[i, 0, 1], jac[i, 1, 1], jac[i, 2, 1] = -shank_m * kx, -shank_m * ky, -shank_m * kz
+        # d z / d (hip, knee) of each segment's CoM, times its weight
+        dz0 = thigh_kg * (thigh_com * tz) + shank_kg * (thigh_m * tz + shank_com * kz)
+        dz1 = shank_kg * (-shank_com * kz)
+        if not (left if i == 0 else right):
+            # the foot turns with the shank about the ankle (hip: about -y, knee: about +y), its
+            # CoM taken where it is with the foot flat: (-y) x r has the z part r_x
+            dz0 += foot_kg * (jac[i, 2, 0] + foot_x)
+            dz1 += foot_kg * (jac[i, 2, 1] - foot_x)
+        torques[2 * i] = GRAVITY * dz0
+        torques[2 * i + 1] = GRAVITY * dz1
 
 
 def desired_wrench(gains: BalanceGains, mass_kg: float, goals: Goals, roll: float, pitch: float, rate_xy: tuple[float, float]) -> np.ndarray:
@@ -312,27 +363,31 @@ def feed_forward(loads: LegLoads, gains: BalanceGains, est: Estimate, m: Measure
                  goals: Goals) -> np.ndarray:
     """The four joints' torque feed-forward (left hip, left knee, right hip, right knee)."""
     roll, pitch, _ = m.trunk_rpy_rad.tolist()
-    q = m.joint_position_rad
-    grav, jac = loads.gravity_and_jacobian(q, roll, pitch, stance)
+    q = np.ascontiguousarray(m.joint_position_rad, dtype=np.float64)
+    torques, jac = np.zeros(4), np.zeros((2, 3, 2))
+    _gravity_and_jacobian(loads.shape, q, roll, pitch, stance[0], stance[1], torques, jac)
     feet = [i for i in LEGS if stance[i]]
     if not feet:
-        return grav
+        return torques
     b = loads.body
     mass = loads.total_kg - len(feet) * b.foot_kg
     rate = m.trunk_rate_rad_s.tolist()
     wrench = desired_wrench(gains, mass, goals, roll, pitch, (rate[0], rate[1]))
-    com = est.com
+    com = est.com.tolist()
     for i in LEGS:  # each stick's load along its axis: its upward part and that part's moment
-        up = float(m.stick_force_n[i]) * max(-float(est.stick_axes[i][2]), 0.0)
-        r = est.tips[i] - com
-        wrench -= (0.0, up, r[1] * up, -r[0] * up)
+        axis_down = -float(est.stick_axes[i][2])
+        up = float(m.stick_force_n[i]) * (axis_down if axis_down > 0.0 else 0.0)
+        tip = est.tips[i].tolist()
+        wrench[1] -= up
+        wrench[2] -= (tip[1] - com[1]) * up
+        wrench[3] -= -(tip[0] - com[0]) * up
     for i in feet:
         wrench[3] -= ankle_spring_pitch(q, pitch, i, gains)
     half = loads.foot.half_width_m
     contacts = np.array([est.ankles[i] + (0.0, s * half, 0.0) - com for i in feet for s in (1.0, -1.0)])
     forces = distribute(wrench, contacts, gains.friction, gains.min_foot_n)
-    torques = grav.copy()
     for n, i in enumerate(feet):
         f = forces[2 * n] + forces[2 * n + 1]
-        torques[2 * i: 2 * i + 2] -= jac[i].T @ f
+        for j in range(2):  # less the Jacobian's transpose times the foot's force
+            torques[2 * i + j] -= jac[i, 0, j] * f[0] + jac[i, 1, j] * f[1] + jac[i, 2, j] * f[2]
     return torques
