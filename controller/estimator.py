@@ -129,7 +129,7 @@ class StateEstimator:
         ankles = []
         fx, fz = b.foot_com_xz_m
         for i in range(2):
-            hip, thigh, shank = rotated[1 + 3 * i: 4 + 3 * i]
+            hip, thigh, shank = rotated[1 + 3 * i], rotated[2 + 3 * i], rotated[3 + 3 * i]
             knee = _along(hip, legs.thigh_m, thigh)
             ankle = _along(knee, legs.shank_m, shank)
             ankles.append(ankle)

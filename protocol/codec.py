@@ -1,9 +1,8 @@
 """Frame codec compiled from the catalogue.
 
-For every message the DBC layout is compiled once, at start-up, into two straight-line Python
-functions (payload -> record and record -> payload) over one integer, which is several times
-faster than a generic bit-walking codec. The DBC stays the only source: the generated code is
-derived from :class:`protocol.catalog.MessageSpec` and can be read with :meth:`Codec.source`.
+For every message the DBC layout is read once, at start-up, into a :class:`protocol.codec_kernel.Layout`
+(its signals' bits, ranges and scaling as numbers), which the kernel's compiled decode and encode
+walk per frame. The DBC stays the only source.
 
 Decoding is total: :meth:`Codec.decode` returns a :class:`Decoded` or a :class:`Rejection` for
 any input and never raises. Encoding raises :class:`protocol.errors.EncodeError` for a value
@@ -13,10 +12,10 @@ that is not finite, outside its range, or not an enumerated value.
 from __future__ import annotations
 
 import enum
-from typing import Any, Callable, NamedTuple
+from typing import Any, NamedTuple
 
-from protocol.catalog import Catalog, MessageSpec, SignalSpec, default_catalog
-from protocol.crc import TABLE, XOR_OUT
+from protocol.catalog import Catalog, MessageSpec, default_catalog
+from protocol import codec_kernel as kernel
 from protocol.errors import EncodeError, ProtocolError
 
 
@@ -61,89 +60,17 @@ class Rejection(NamedTuple):
     timestamp: float | None = None
 
 
-def _physical_expr(var: str, sig: SignalSpec) -> str:
-    if sig.is_integer:
-        return var
-    expr = f"{var} * {sig.scale!r}"
-    return f"({expr} + {sig.offset!r})" if sig.offset else expr
-
-
-def _crc_lines(var: str, first: int, last: int) -> list[str]:
-    """Unrolled CRC over ``var[first..last]`` starting from the message's seed (no Python loop)."""
-    lines = [f"    c = TABLE[SEED ^ {var}[{first}]]"]
-    lines += [f"    c = TABLE[c ^ {var}[{i}]]" for i in range(first + 1, last + 1)]
-    return lines
-
-
-def _decoder_source(spec: MessageSpec) -> str:
-    """Source of ``decode(data)``: the record, -1 for a bad CRC, or the index of the first
-    out-of-range signal. ``data`` must have the message's DLC (checked by the caller)."""
-    lines = ["def decode(d):"]
-    lines += _crc_lines("d", 1, spec.dlc - 1)
-    lines.append(f"    if c ^ {XOR_OUT:#x} != d[0]:")
-    lines.append("        return -1")
-    lines.append("    raw = FROM_BYTES(d, 'little')")
-    for k, sig in enumerate(spec.signals):
-        mask = (1 << sig.length) - 1
-        lines.append(f"    r{k} = (raw >> {sig.start}) & {mask:#x}")
-        if sig.signed:
-            lines.append(f"    if r{k} & {1 << (sig.length - 1):#x}:")
-            lines.append(f"        r{k} -= {1 << sig.length:#x}")
-        if sig.choices is not None:
-            lines.append(f"    if r{k} not in CHOICES_{k}:")
-            lines.append(f"        return {k}")
-        else:
-            if (sig.raw_min, sig.raw_max) != (sig.raw_min_representable, sig.raw_max_representable):
-                lines.append(f"    if not {sig.raw_min} <= r{k} <= {sig.raw_max}:")
-                lines.append(f"        return {k}")
-    fields = "".join(f"{_physical_expr(f'r{k}', sig)}, " for k, sig in enumerate(spec.signals))
-    lines.append(f"    return TUPLE_NEW(RECORD, ({fields}))")
-    return "\n".join(lines) + "\n"
-
-
-def _encoder_source(spec: MessageSpec) -> str:
-    """Source of ``encode(values, counter) -> bytes`` (CRC in byte 0, counter in bits 8..11).
-
-    Every value is range-checked before conversion; the chained comparison is also False for NaN.
-    """
-    names = [f"v{k}" for k in range(len(spec.signals))]
-    lines = ["def encode(values, counter):"]
-    if names:
-        lines.append(f"    {', '.join(names)}{',' if len(names) == 1 else ''} = values")
-    parts = ["(counter & 0xF)"]
-    for k, sig in enumerate(spec.signals):
-        v = f"v{k}"
-        if sig.choices is not None:
-            lines.append(f"    if {v} not in CHOICES_{k}:")
-            lines.append(f"        bad({k}, {v})")
-            raw = f"int({v})"
-        else:
-            lines.append(f"    if not {sig.minimum!r} <= {v} <= {sig.maximum!r}:")
-            lines.append(f"        bad({k}, {v})")
-            if sig.is_integer:
-                raw = f"int({v})"
-            else:
-                shifted = f"({v} - {sig.offset!r})" if sig.offset else v
-                raw = f"round({shifted} / {sig.scale!r})"
-        if sig.signed:
-            raw = f"({raw} & {(1 << sig.length) - 1:#x})"
-        parts.append(f"({raw} << {sig.start - 8})")
-    lines.append(f"    b = ({' | '.join(parts)}).to_bytes({spec.dlc - 1}, 'little')")
-    lines += _crc_lines("b", 0, spec.dlc - 2)
-    lines.append(f"    return bytes((c ^ {XOR_OUT:#x},)) + b")
-    return "\n".join(lines) + "\n"
-
-
-def _compile(source: str, name: str, namespace: dict[str, Any]) -> Callable[..., Any]:
-    code = compile(source, f"<codec {name}>", "exec")
-    exec(code, namespace)  # noqa: S102 - source generated from the validated catalogue only
-    return namespace[source.split("(", 1)[0].removeprefix("def ")]
-
-
 class _Compiled(NamedTuple):
     spec: MessageSpec
-    decode: Callable[[bytes | bytearray], Any]
-    encode: Callable[[Any, int], bytes]
+    layout: kernel.Layout
+
+
+def _bad_value(spec: MessageSpec, index: int, value: Any) -> EncodeError:
+    sig = spec.signals[index]
+    if sig.choices is not None:
+        allowed = ", ".join(f"{k} ({v})" for k, v in sig.choices.items())
+        return EncodeError(f"{spec.name}.{sig.name}: {value!r} is not one of {allowed}")
+    return EncodeError(f"{spec.name}.{sig.name}: {value!r} is outside [{sig.minimum:g}, {sig.maximum:g}] {sig.unit}".rstrip())
 
 
 class Codec:
@@ -151,41 +78,9 @@ class Codec:
 
     def __init__(self, catalog: Catalog | None = None) -> None:
         self.catalog = catalog if catalog is not None else default_catalog()
-        self._sources: dict[str, str] = {}
-        self._compiled: dict[int, _Compiled] = {
-            spec.frame_id: self._compile_message(spec) for spec in self.catalog.messages
-        }
-
-    def _compile_message(self, spec: MessageSpec) -> _Compiled:
-        def bad(index: int, value: Any) -> None:
-            sig = spec.signals[index]
-            if sig.choices is not None:
-                allowed = ", ".join(f"{k} ({v})" for k, v in sig.choices.items())
-                raise EncodeError(f"{spec.name}.{sig.name}: {value!r} is not one of {allowed}")
-            raise EncodeError(
-                f"{spec.name}.{sig.name}: {value!r} is outside [{sig.minimum:g}, {sig.maximum:g}] {sig.unit}".rstrip()
-            )
-
-        namespace: dict[str, Any] = {
-            "RECORD": spec.record,
-            "TABLE": TABLE,
-            "SEED": spec.crc_seed,
-            "FROM_BYTES": int.from_bytes,
-            "TUPLE_NEW": tuple.__new__,
-            "bad": bad,
-        }
-        for k, sig in enumerate(spec.signals):
-            if sig.choices is not None:
-                namespace[f"CHOICES_{k}"] = frozenset(sig.choices)
-        dec_src, enc_src = _decoder_source(spec), _encoder_source(spec)
-        self._sources[spec.name] = dec_src + "\n" + enc_src
-        return _Compiled(spec, _compile(dec_src, spec.name, dict(namespace)), _compile(enc_src, spec.name, dict(namespace)))
+        self._compiled: dict[int, _Compiled] = {spec.frame_id: _Compiled(spec, kernel.layout_of(spec)) for spec in self.catalog.messages}
 
     # -- introspection -------------------------------------------------------------------------
-
-    def source(self, name: str) -> str:
-        """The generated decoder and encoder of message ``name`` (for debugging)."""
-        return self._sources[self.catalog.by_name(name).name]
 
     def spec(self, name_or_id: str | int) -> MessageSpec:
         if isinstance(name_or_id, int):
@@ -208,19 +103,12 @@ class Codec:
         elif len(values) != len(spec.signals):
             raise EncodeError(f"{spec.name}: expected {len(spec.signals)} values, got {len(values)}")
         try:
-            return self._compiled[spec.frame_id].encode(values, counter)
-        except EncodeError:
-            raise
+            data = kernel.encode(self._compiled[spec.frame_id].layout, values, counter)
         except (TypeError, ValueError, OverflowError) as exc:
             raise EncodeError(f"{spec.name}: cannot encode {values!r}: {exc}") from None
-
-    def encoder(self, message: str | int | MessageSpec) -> Callable[[Any, int], bytes]:
-        """The compiled ``encode(values, counter)`` of one message, for hot paths that send it every tick.
-
-        ``values`` must be a sequence in signal order; raises :class:`EncodeError` like :meth:`encode`.
-        """
-        spec = message if isinstance(message, MessageSpec) else self.spec(message)
-        return self._compiled[spec.frame_id].encode
+        if type(data) is int:
+            raise _bad_value(spec, data, values[data])
+        return data
 
     @staticmethod
     def record_from_mapping(spec: MessageSpec, values: dict[str, Any]) -> Any:
@@ -260,7 +148,7 @@ class Codec:
             compiled = self.lookup(frame_id, data)
             if type(compiled) is Rejection:
                 return compiled
-            result = compiled.decode(data)
+            result = kernel.decode(compiled.layout, data)
             if type(result) is int:
                 return self.rejection(compiled, result, frame_id)._replace(timestamp=timestamp)
             return _new(Decoded, (compiled.spec, result, data[1] & 0xF, timestamp))

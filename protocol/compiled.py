@@ -29,6 +29,9 @@ from pathlib import Path
 #: the compiled modules, by the profile of a walking tick (docs/PERFORMANCE.md)
 MODULES = (
     "controller.balance",
+    "protocol.codec_kernel",
+    "protocol.codec",
+    "protocol.e2e",
 )
 PURE_ENV = "AIDER_EXO_PURE_PYTHON"
 SIDECAR = ".sha256"

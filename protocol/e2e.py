@@ -28,6 +28,7 @@ import can
 
 from protocol.catalog import COUNTER_MODULO, MessageSpec
 from protocol.codec import Codec, Decoded, RejectReason, Rejection, _new
+from protocol.codec_kernel import decode as decode_payload
 from protocol.enums import NmtState
 
 
@@ -103,7 +104,7 @@ class Receiver:
             compiled = self.codec.lookup(frame_id, data)
             if type(compiled) is Rejection:
                 return self._reject(compiled._replace(timestamp=timestamp))
-            result = compiled.decode(data)
+            result = decode_payload(compiled.layout, data)
             if result == -1:
                 return self._reject(self.codec.rejection(compiled, -1, frame_id)._replace(timestamp=timestamp))
             counter = data[1] & 0xF

@@ -162,7 +162,3 @@ def test_encode_accepts_enum_members_and_sequences():
     with pytest.raises(EncodeError, match="expected 5 values, got 2"):
         CODEC.encode(spec, (1, 0.0), 0)
 
-
-def test_generated_source_is_readable():
-    source = CODEC.source("SYNC")
-    assert "def decode(d):" in source and "def encode(values, counter):" in source
