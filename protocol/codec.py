@@ -121,39 +121,38 @@ class Codec:
 
     # -- decoding ------------------------------------------------------------------------------
 
-    def lookup(self, frame_id: int, data: bytes | bytearray) -> _Compiled | Rejection:
-        """The compiled message for a frame, or a rejection for an unknown ID or a wrong length."""
-        compiled = self._compiled.get(frame_id)
-        if compiled is None:
-            return Rejection(RejectReason.UNKNOWN_ID, frame_id, f"unknown frame ID {frame_id:#x}")
-        if len(data) != compiled.spec.dlc:
-            spec = compiled.spec
-            return Rejection(RejectReason.WRONG_DLC, frame_id, f"{spec.name}: DLC {len(data)}, expected {spec.dlc}", spec)
-        return compiled
-
-    @staticmethod
-    def rejection(compiled: _Compiled, code: int, frame_id: int) -> Rejection:
-        """The rejection for an integer result of a compiled decoder (-1: CRC, k: signal k)."""
-        spec = compiled.spec
-        if code < 0:
-            return Rejection(RejectReason.BAD_CRC, frame_id, f"{spec.name}: CRC mismatch", spec)
-        return Rejection(RejectReason.OUT_OF_RANGE, frame_id, f"{spec.name}.{spec.signals[code].name} out of range", spec)
-
     def decode(self, frame_id: int, data: bytes | bytearray, timestamp: float | None = None) -> Decoded | Rejection:
         """Stateless decode: ID, length, CRC and ranges (alive counters are checked by :mod:`protocol.e2e`).
 
         Total: returns a :class:`Decoded` or a :class:`Rejection` for any input, never raises.
         """
         try:
-            compiled = self.lookup(frame_id, data)
-            if type(compiled) is Rejection:
-                return compiled
+            compiled = self._compiled.get(frame_id)
+            if compiled is None:
+                return self.unknown(frame_id, timestamp)
             result = kernel.decode(compiled.layout, data)
             if type(result) is int:
-                return self.rejection(compiled, result, frame_id)._replace(timestamp=timestamp)
+                return self.rejection(compiled.spec, result, data, timestamp)
             return _new(Decoded, (compiled.spec, result, data[1] & 0xF, timestamp))
         except Exception as exc:  # never let a receive path raise; counted as a decoder fault
             return Rejection(RejectReason.DECODER_FAULT, frame_id if isinstance(frame_id, int) else -1, repr(exc))
+
+    def layout(self, frame_id: int) -> _Compiled | None:
+        """A known frame ID's message and its layout for :func:`protocol.codec_kernel.decode` (hot paths)."""
+        return self._compiled.get(frame_id)
+
+    @staticmethod
+    def unknown(frame_id: int, timestamp: float | None = None) -> Rejection:
+        return Rejection(RejectReason.UNKNOWN_ID, frame_id, f"unknown frame ID {frame_id:#x}", timestamp=timestamp)
+
+    @staticmethod
+    def rejection(spec: MessageSpec, code: int, data: bytes | bytearray, timestamp: float | None = None) -> Rejection:
+        """The rejection for an integer answer of :func:`protocol.codec_kernel.decode`."""
+        if code == kernel.WRONG_LENGTH:
+            return Rejection(RejectReason.WRONG_DLC, spec.frame_id, f"{spec.name}: DLC {len(data)}, expected {spec.dlc}", spec, timestamp)
+        if code == kernel.BAD_CRC:
+            return Rejection(RejectReason.BAD_CRC, spec.frame_id, f"{spec.name}: CRC mismatch", spec, timestamp)
+        return Rejection(RejectReason.OUT_OF_RANGE, spec.frame_id, f"{spec.name}.{spec.signals[code].name} out of range", spec, timestamp)
 
     @staticmethod
     def as_dict(decoded: Decoded, *, choices: bool = False) -> dict[str, Any]:

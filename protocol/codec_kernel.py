@@ -23,6 +23,8 @@ from protocol.crc import TABLE, XOR_OUT
 
 # C constants when compiled (cython.declare), module constants when interpreted
 _XOR = cython.declare(cython.int, XOR_OUT)
+#: decode's answers other than a record and a signal's index
+WRONG_LENGTH, BAD_CRC = -2, -1
 #: signal kinds
 SCALED = cython.declare(cython.int, 0)
 INTEGER = cython.declare(cython.int, 1)
@@ -82,14 +84,18 @@ def layout_of(spec) -> Layout:
                word=cython.ulonglong, u=cython.ulonglong, r=cython.longlong, length=cython.int, one=cython.ulonglong,
                kind=cython.int, crc=cython.p_uchar, d=cython.p_uchar, sig=cython.double[::1], values=list)
 def decode(layout: Layout, data):
-    """The record of ``data`` (of the message's DLC, checked by the caller), -1 for a bad CRC, or
-    the index of the first signal outside its range or enumeration."""
-    crc, d, dlc = _TABLE, data, layout.dlc
+    """The record of ``data`` (bytes or bytearray), or why not: ``WRONG_LENGTH`` for a length
+    other than the message's DLC, ``BAD_CRC``, or the index of the first signal outside its range
+    or enumeration."""
+    dlc = layout.dlc
+    if len(data) != dlc:
+        return WRONG_LENGTH
+    crc, d = _TABLE, data
     c = crc[layout.seed ^ d[1]]
     for i in range(2, dlc):
         c = crc[c ^ d[i]]
     if c ^ _XOR != d[0]:
-        return -1
+        return BAD_CRC
     sig = layout.table
     word, one = 0, 1
     for i in range(dlc - 1, -1, -1):

@@ -28,6 +28,7 @@ import can
 
 from protocol.catalog import COUNTER_MODULO, MessageSpec
 from protocol.codec import Codec, Decoded, RejectReason, Rejection, _new
+from protocol.codec_kernel import BAD_CRC, WRONG_LENGTH
 from protocol.codec_kernel import decode as decode_payload
 from protocol.enums import NmtState
 
@@ -101,20 +102,20 @@ class Receiver:
     def receive_data(self, frame_id: int, data: bytes | bytearray, timestamp: float | None = None) -> Decoded | Rejection:
         """Process one classic frame given by its 11-bit ID and payload."""
         try:
-            compiled = self.codec.lookup(frame_id, data)
-            if type(compiled) is Rejection:
-                return self._reject(compiled._replace(timestamp=timestamp))
-            result = decode_payload(compiled.layout, data)
-            if result == -1:
-                return self._reject(self.codec.rejection(compiled, -1, frame_id)._replace(timestamp=timestamp))
+            compiled = self.codec.layout(frame_id)
+            if compiled is None:
+                return self._reject(self.codec.unknown(frame_id, timestamp))
+            spec = compiled[0]
+            result = decode_payload(compiled[1], data)
+            if result == WRONG_LENGTH or result == BAD_CRC:
+                return self._reject(self.codec.rejection(spec, result, data, timestamp))
             counter = data[1] & 0xF
-            if counter == 0 and _sender_started(compiled.spec, result):
-                self._restart(compiled.spec.sender)
+            if counter == 0 and _sender_started(spec, result):
+                self._restart(spec.sender)
             last = self._last.get(frame_id)
             if last is not None:
                 delta = (counter - last) % COUNTER_MODULO
                 if delta == 0 or delta > self.max_delta_counter:
-                    spec = compiled.spec
                     if delta == 0:
                         reason, detail = RejectReason.REPEATED, f"{spec.name}: counter {counter} repeated"
                     else:
@@ -126,9 +127,9 @@ class Receiver:
                     self.stats.lost_by_id[frame_id] += delta - 1
             self._last[frame_id] = counter
             if type(result) is int:
-                return self._reject(self.codec.rejection(compiled, result, frame_id)._replace(timestamp=timestamp))
+                return self._reject(self.codec.rejection(spec, result, data, timestamp))
             self.stats.accepted += 1
-            return _new(Decoded, (compiled.spec, result, counter, timestamp))
+            return _new(Decoded, (spec, result, counter, timestamp))
         except Exception as exc:  # a receive path never raises; a fault here is counted and visible
             fid = frame_id if isinstance(frame_id, int) else -1
             return self._reject(Rejection(RejectReason.DECODER_FAULT, fid, repr(exc), timestamp=timestamp))
