@@ -13,6 +13,9 @@ is loaded compiled unless
   ``pip install -e .`` rebuilds it): then the source runs, and the first such import says so once
   on stderr.
 
+An extension beside a module of the project's packages that is not in :data:`MODULES` (one
+compiled once, since taken off the list) is never loaded: its source runs.
+
 :func:`install` puts the chooser on ``sys.meta_path``; every package that holds one of the modules
 calls it in its ``__init__``. :func:`report` says how each module was loaded (``aider-exo --version``).
 """
@@ -33,6 +36,7 @@ MODULES = (
     "protocol.codec",
     "protocol.e2e",
 )
+PACKAGES = ("config", "controller", "nodes", "protocol", "sim", "tools")  # the project's top-level packages
 PURE_ENV = "AIDER_EXO_PURE_PYTHON"
 SIDECAR = ".sha256"
 
@@ -60,15 +64,16 @@ def _extension(folder: Path, leaf: str) -> Path | None:
 
 
 class _Chooser:
-    """A meta path finder for :data:`MODULES`: the source where the extension is not to be used,
-    else nothing (the standard finder loads the extension, which it prefers to the source)."""
+    """A meta path finder for the project's modules: the source where an extension beside it is
+    not to be used, else nothing (the standard finder loads the module: the extension, which it
+    prefers to the source, or the source alone)."""
 
     def __init__(self) -> None:
         self.why: dict[str, str] = {}  # module -> why it runs interpreted
         self._warned = False
 
     def find_spec(self, fullname: str, path, target=None):
-        if fullname not in MODULES or not path:
+        if not path or fullname.partition(".")[0] not in PACKAGES:
             return None
         leaf = fullname.rpartition(".")[2]
         for entry in path:
@@ -77,7 +82,10 @@ class _Chooser:
                 break
         else:
             return None
-        why = self._interpreted_because(source, leaf)
+        if fullname in MODULES:
+            why = self._interpreted_because(source, leaf)
+        else:
+            why = None if _extension(source.parent, leaf) is None else "not in protocol/compiled.py's MODULES"
         if why is None:
             return None
         self.why[fullname] = why

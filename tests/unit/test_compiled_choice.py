@@ -49,3 +49,20 @@ def test_an_extension_of_another_source_is_not_used_and_said_once(tmp_path, monk
     assert chooser._interpreted_because(source, "mod") is None
     source.with_suffix(".pxd").write_text("cdef int x\n")
     assert "another source" in chooser._interpreted_because(source, "mod")
+
+
+def test_an_extension_of_a_module_off_the_list_is_never_loaded(tmp_path, monkeypatch):
+    """A module compiled once and since taken off MODULES: its source runs, not the old extension."""
+    monkeypatch.delenv(compiled.PURE_ENV, raising=False)
+    name = "controller.zz_once_compiled"
+    assert name not in compiled.MODULES
+    source = _module(tmp_path, extension=True, digest=None).rename(tmp_path / "zz_once_compiled.py")
+    (tmp_path / "mod.py").write_text("")
+    (tmp_path / f"mod{importlib.machinery.EXTENSION_SUFFIXES[0]}").rename(tmp_path / f"zz_once_compiled{importlib.machinery.EXTENSION_SUFFIXES[0]}")
+    chooser = compiled._Chooser()
+    spec = chooser.find_spec(name, [str(tmp_path)])
+    assert spec is not None and spec.origin == str(source) and "MODULES" in chooser.why[name]
+    # without an extension beside it, the standard finder's business
+    assert chooser.find_spec("controller.mod", [str(tmp_path)]) is None
+    # and nothing outside the project's packages
+    assert chooser.find_spec("numpyish.zz_once_compiled", [str(tmp_path)]) is None
