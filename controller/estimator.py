@@ -28,35 +28,28 @@ trunk's heading (its yaw removed), so the ratio needs no global position. Per ti
 from __future__ import annotations
 
 import math
+from array import array
 from dataclasses import dataclass, field
 
+import cython
 import numpy as np
+
+if cython.compiled:
+    from cython.cimports.libc.math import acos, atan2, cos, fabs, sin
+else:
+    from math import acos, atan2, cos, fabs, sin
 
 from controller.support import convex_hull, window_on_line
 from protocol.geometry import fore_aft_ratio
 
 SIDES = ("l", "r")
-Vec3 = tuple[float, float, float] | list[float]
-
-
-def rpy_rows(roll: float, pitch: float, yaw: float = 0.0) -> tuple[tuple[float, float, float], ...]:
-    """The rows of :func:`rot_rpy` as floats (no array: the estimator's per-tick arithmetic)."""
-    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
-    return (
-        (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
-        (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
-        (-sp, cp * sr, cp * cr),
-    )
-
-
-def _along(p: Vec3, s: float, d: Vec3) -> Vec3:
-    """``p + s d`` for 3-vectors of floats."""
-    return (p[0] + s * d[0], p[1] + s * d[1], p[2] + s * d[2])
 
 
 def rot_rpy(roll: float, pitch: float, yaw: float = 0.0) -> np.ndarray:
-    """Rz(yaw) Ry(pitch) Rx(roll): the IMUs' roll-pitch-yaw convention."""
-    return np.array(rpy_rows(roll, pitch, yaw))
+    """Rz(yaw) Ry(pitch) Rx(roll): the IMUs' roll-pitch-yaw convention (:func:`_rows`)."""
+    r = array("d", bytes(72))
+    _rows(roll, pitch, yaw, r)
+    return np.array(r).reshape(3, 3)
 
 
 @dataclass(frozen=True)
@@ -98,82 +91,44 @@ class StateEstimator:
     _floor_z: float | None = None
 
     def __post_init__(self) -> None:
-        b = self.body
-        # the segments' masses in the order of update's points (trunk, each leg's thigh, shank and
+        b, legs = self.body, self.legs
+        # the segments' masses in the order of the chain's points (trunk, each leg's thigh, shank and
         # foot, each arm's upper arm and forearm) and their total, numpy's sum as over an array
-        self._masses = (b.trunk_kg, *(b.thigh_kg, b.shank_kg, b.foot_kg) * 2, *(b.upper_arm_kg, b.forearm_kg) * 2)
-        self._mass_total = float(np.asarray(self._masses).sum())
+        masses = (b.trunk_kg, *(b.thigh_kg, b.shank_kg, b.foot_kg) * 2, *(b.upper_arm_kg, b.forearm_kg) * 2)
+        self._masses_buffer = array("d", (*masses, float(np.asarray(masses).sum())))
+        self._shape = array("d", (
+            b.trunk_com_xz_m[0], b.trunk_com_xz_m[1], b.hip_half_width_m, *b.shoulder_xyz_m, legs.thigh_m, legs.shank_m,
+            b.thigh_com_m, b.shank_com_m, b.foot_com_xz_m[0], b.foot_com_xz_m[1], legs.ankle_height_m, b.upper_arm_m,
+            b.elbow_to_tip_m, b.upper_arm_com_m, b.forearm_com_m, self.hardware.sticks.tip_radius_m, b.foot_flat_n,
+            b.elbow_min_rad, b.elbow_max_rad))
+        assert len(self._shape) == _SHAPE_LEN
+        self._inputs = array("d", bytes(8 * 19))
+        self._state = array("d", (self._elbow[0], self._elbow[1], 0.0, 0.0))  # elbows, floor z, whether it is known
+        self._work = array("d", bytes(8 * 9))
+        self._out = array("d", bytes(8 * 24))
 
     def update(self, m: Measurements) -> Estimate:
-        """One tick's estimate. Three-element vectors are plain floats (numpy's call overhead is
-        most of the cost on arrays this small); the rotations by the trunk are one batched numpy
-        product, the same per-vector arithmetic as ``trunk @ v`` for each."""
-        b, legs, tip_radius = self.body, self.legs, self.hardware.sticks.tip_radius_m
-        roll, pitch, yaw = m.trunk_rpy_rad.tolist()
+        """One tick's estimate: the body model's chain over scalars (:func:`_chain`, compiled),
+        then the pivot polygon and X_CoM/X_SP."""
+        b = self.body
         heel, toe, stick_force = m.heel_force_n.tolist(), m.toe_force_n.tolist(), m.stick_force_n.tolist()
         feet_loaded = (heel[0] + toe[0] > b.foot_loaded_n, heel[1] + toe[1] > b.foot_loaded_n)
         sticks_loaded = (stick_force[0] > b.stick_loaded_n, stick_force[1] > b.stick_loaded_n)
-        # in the trunk's frame: its CoM; per leg the hip, the thigh's and the shank's axes; per arm the shoulder
-        sx, sy, sz = b.shoulder_xyz_m
-        body_vectors = [[b.trunk_com_xz_m[0], 0.0, b.trunk_com_xz_m[1]]]
-        q = m.joint_position_rad.tolist()
-        for i, side in enumerate(SIDES):
-            sign = 1.0 if side == "l" else -1.0
-            hip_q, knee_q = q[2 * i], q[2 * i + 1]
-            body_vectors += [[0.0, sign * b.hip_half_width_m, 0.0], [math.sin(hip_q), 0.0, -math.cos(hip_q)],
-                             [math.sin(hip_q - knee_q), 0.0, -math.cos(hip_q - knee_q)]]
-        body_vectors += [[sx, sign * sy, sz] for sign in (1.0, -1.0)]
-        rotated = (rot_rpy(roll, pitch) @ np.array(body_vectors)[:, :, None])[:, :, 0].tolist()
-        points = [rotated[0]]
-
-        ankles = []
-        fx, fz = b.foot_com_xz_m
-        for i in range(2):
-            hip, thigh, shank = rotated[1 + 3 * i], rotated[2 + 3 * i], rotated[3 + 3 * i]
-            knee = _along(hip, legs.thigh_m, thigh)
-            ankle = _along(knee, legs.shank_m, shank)
-            ankles.append(ankle)
-            points += [_along(hip, b.thigh_com_m, thigh), _along(knee, b.shank_com_m, shank), (ankle[0] + fx, ankle[1] + 0.0, ankle[2] + fz)]
-        # the floor from the feet that are flat (heel and toe loaded); with none (a heel risen in the
-        # swing, the foot on its toe, its ankle higher by the foot's tilt) the last tick's
-        loaded_z = [ankles[i][2] - legs.ankle_height_m for i in range(2)
-                    if feet_loaded[i] and heel[i] > b.foot_flat_n and toe[i] > b.foot_flat_n]
-        if loaded_z:
-            total = 0.0
-            for z in loaded_z:  # summed in order, as numpy's mean of so few values
-                total += z
-            self._floor_z = total / len(loaded_z)
-        floor_z = self._floor_z if self._floor_z is not None else min(ankles[0][2], ankles[1][2]) - legs.ankle_height_m
-
-        tips, axes = [], []
-        on_floor = [False, False]
-        stick_rpy = m.stick_rpy_rad.tolist()
-        for i in range(2):
-            shoulder = rotated[7 + i]
-            s_roll, s_pitch, s_yaw = stick_rpy[i]
-            forearm = rpy_rows(s_roll, s_pitch, s_yaw - yaw)  # relative to the trunk's heading
-            u = (-forearm[0][2], -forearm[1][2], -forearm[2][2])  # stick axis (toward the tip)
-            axes.append(u)
-            x_f = (forearm[0][0], forearm[1][0], forearm[2][0])  # forearm x
-            # upper arm w = cos e u - sin e x_f; the tip at the floor: A cos e + B sin e = C
-            a_, b_ = b.upper_arm_m * u[2], -b.upper_arm_m * x_f[2]
-            c_ = floor_z + tip_radius - shoulder[2] - b.elbow_to_tip_m * u[2]
-            e, on_floor[i] = self._elbow_angle(i, a_, b_, c_)
-            ce, se = math.cos(e), math.sin(e)
-            w = (ce * u[0] - se * x_f[0], ce * u[1] - se * x_f[1], ce * u[2] - se * x_f[2])
-            elbow = _along(shoulder, b.upper_arm_m, w)
-            tip = _along(elbow, b.elbow_to_tip_m, u)
-            tips.append((tip[0], tip[1], tip[2] - tip_radius))
-            points += [_along(shoulder, b.upper_arm_com_m, w), _along(elbow, b.forearm_com_m, u)]
-        cx = cy = cz = 0.0
-        for mass, (x, y, z) in zip(self._masses, points):  # summed point by point, as numpy's sum over axis 0
-            cx, cy, cz = cx + mass * x, cy + mass * y, cz + mass * z
-        com = (cx / self._mass_total, cy / self._mass_total, cz / self._mass_total)
-
+        inputs, out = self._inputs, self._out
+        inputs[0:4] = array("d", m.joint_position_rad.tolist())
+        inputs[4:7] = array("d", m.trunk_rpy_rad.tolist())
+        inputs[7:13] = array("d", [x for row in m.stick_rpy_rad.tolist() for x in row])
+        inputs[13:17] = array("d", (heel[0], heel[1], toe[0], toe[1]))
+        inputs[17:19] = array("d", (1.0 if feet_loaded[0] else 0.0, 1.0 if feet_loaded[1] else 0.0))
+        _chain(self._shape, self._masses_buffer, inputs, self._state, self._work, out)
+        values = out.tolist()
+        com, ankles, tips, axes = values[0:3], (values[3:6], values[6:9]), (values[9:12], values[12:15]), (values[15:18], values[18:21])
+        self._elbow = [self._state[0], self._state[1]]
+        self._floor_z = self._state[2] if self._state[3] else None
         support = self._pivot_polygon(ankles, tips, feet_loaded, sticks_loaded)
-        return Estimate(np.array(com), np.array(ankles), np.array(tips), feet_loaded, sticks_loaded, floor_z,
+        return Estimate(np.array(com), np.array(ankles), np.array(tips), feet_loaded, sticks_loaded, values[21],
                         np.array(support).reshape(-1, 2), fore_aft_ratio(com[0], [p[0] for p in support], self.body.min_support_m),
-                        (self._elbow[0], self._elbow[1]), (on_floor[0], on_floor[1]), np.array(axes))
+                        (self._elbow[0], self._elbow[1]), (values[22] != 0.0, values[23] != 0.0), np.array(axes))
 
     def stance_ratio(self, est: Estimate, stance: int) -> float:
         """X_CoM/X_SP over the support of a swing of the other leg (SPEC): where the CoM lies along
@@ -194,24 +149,6 @@ class StateEstimator:
         rear, front = min(x for x, _ in points), window_on_line(convex_hull(points), float(com[1]), 0.0)[1]
         return (float(com[0]) - rear) / (front - rear) if front - rear >= b.min_support_m else math.nan
 
-    def _elbow_angle(self, i: int, a: float, b: float, c: float) -> tuple[float, bool]:
-        lo, hi = self.body.elbow_min_rad, self.body.elbow_max_rad
-        r = math.hypot(a, b)
-        if r < 1e-9 or abs(c) > r:
-            return self._elbow[i], False  # the tip cannot reach the floor: keep the last elbow angle
-        base, spread = math.atan2(b, a), math.acos(c / r)
-        roots = []
-        for e in (base + spread, base - spread):
-            e = (e + math.pi) % (2 * math.pi) - math.pi
-            if lo - 1e-6 <= e <= hi + 1e-6:
-                roots.append(min(max(e, lo), hi))
-        if not roots:
-            return self._elbow[i], False
-        last = self._elbow[i]
-        e = roots[0] if len(roots) == 1 or abs(roots[0] - last) <= abs(roots[1] - last) else roots[1]  # min() by nearness: the first on a tie
-        self._elbow[i] = e
-        return e, True
-
     def _pivot_polygon(self, ankles, tips, feet_loaded, sticks_loaded) -> list[tuple[float, float]]:
         """The pivot polygon's vertices (x, y): each loaded ankle widened by half the sole across the heading, each loaded tip."""
         half = self.hardware.foot.half_width_m
@@ -223,3 +160,153 @@ class StateEstimator:
             if sticks_loaded[i]:
                 pts.append((tips[i][0], tips[i][1]))
         return pts
+
+
+_SHAPE_LEN = 21
+_PI = cython.declare(cython.double, math.pi)
+
+
+@cython.ccall
+@cython.boundscheck(False)
+@cython.wraparound(False)
+def _rows(roll: cython.double, pitch: cython.double, yaw: cython.double, r: cython.double[::1]) -> cython.void:
+    """Rz(yaw) Ry(pitch) Rx(roll) into ``r`` (row-major 3 x 3)."""
+    cr: cython.double = cos(roll)
+    sr: cython.double = sin(roll)
+    cp: cython.double = cos(pitch)
+    sp: cython.double = sin(pitch)
+    cy: cython.double = cos(yaw)
+    sy: cython.double = sin(yaw)
+    r[0], r[1], r[2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+    r[3], r[4], r[5] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+    r[6], r[7], r[8] = -sp, cp * sr, cp * cr
+
+
+@cython.cfunc
+@cython.boundscheck(False)
+@cython.wraparound(False)
+@cython.locals(s=cython.double)
+def _rotated(r: cython.double[::1], x: cython.double, y: cython.double, z: cython.double, row: cython.Py_ssize_t) -> cython.double:
+    """Row ``row`` of ``r`` times (x, y, z), summed from 0 in order, as numpy's matmul loop does."""
+    s = 0.0
+    s += r[3 * row] * x
+    s += r[3 * row + 1] * y
+    s += r[3 * row + 2] * z
+    return s
+
+
+@cython.cfunc
+@cython.locals(rr=cython.double, base=cython.double, spread=cython.double, e=cython.double, last=cython.double,
+               r0=cython.double, r1=cython.double, n=cython.int, k=cython.int)
+def _elbow_angle(state: cython.double[::1], i: cython.Py_ssize_t, a: cython.double, b: cython.double, c: cython.double,
+                 lo: cython.double, hi: cython.double) -> cython.bint:
+    """The elbow angle that puts the tip on the floor (``a cos e + b sin e = c``), the root inside
+    [lo, hi] nearer the last tick's (``state[i]``, updated), the first on a tie; False (the last
+    angle kept) when none reaches."""
+    rr = math.hypot(a, b)  # Python's (its own algorithm, not libm's): the same either way
+    if rr < 1e-9 or fabs(c) > rr:
+        return False
+    base, spread = atan2(b, a), acos(c / rr)
+    n = 0
+    r0 = r1 = 0.0
+    for k in range(2):
+        e = base + spread if k == 0 else base - spread
+        e = (e + _PI) % (2 * _PI) - _PI  # Python's modulo (cdivision off): the sign of the divisor
+        if lo - 1e-6 <= e <= hi + 1e-6:
+            e = lo if lo > e else e  # min(max(e, lo), hi)
+            e = hi if hi < e else e
+            if n == 0:
+                r0 = e
+            else:
+                r1 = e
+            n += 1
+    if n == 0:
+        return False
+    last = state[i]
+    state[i] = r0 if n == 1 or fabs(r0 - last) <= fabs(r1 - last) else r1
+    return True
+
+
+@cython.cfunc
+@cython.boundscheck(False)
+@cython.wraparound(False)
+@cython.locals(i=cython.Py_ssize_t, sign=cython.double, hip_q=cython.double, shank_q=cython.double, hx=cython.double,
+               hy=cython.double, hz=cython.double, tx=cython.double, ty=cython.double, tz=cython.double,
+               kx=cython.double, ky=cython.double, kz=cython.double, nx=cython.double, ny=cython.double,
+               nz=cython.double, ax=cython.double, ay=cython.double, az=cython.double, cx=cython.double,
+               cy=cython.double, cz=cython.double, total=cython.double, count=cython.int, floor_z=cython.double,
+               sx=cython.double, sy=cython.double, sz=cython.double, ux=cython.double, uy=cython.double,
+               uz=cython.double, fx=cython.double, fy=cython.double, fz=cython.double, a_=cython.double,
+               b_=cython.double, c_=cython.double, e=cython.double, ce=cython.double, se=cython.double,
+               wx=cython.double, wy=cython.double, wz=cython.double, ex=cython.double, ey=cython.double,
+               ez=cython.double, px=cython.double, py=cython.double, pz=cython.double, mass=cython.double,
+               tip_radius=cython.double, flat=cython.double)
+def _chain(p: cython.double[::1], masses: cython.double[::1], inputs: cython.double[::1], state: cython.double[::1],
+           r: cython.double[::1], out: cython.double[::1]) -> cython.void:
+    """The body model's chain in the heading frame (see the module doc), over scalars.
+
+    ``p``: the body (``StateEstimator._shape``: trunk CoM x, z; hip half width; shoulder x, y, z;
+    thigh, shank; thigh CoM, shank CoM; foot CoM x, z; ankle height; upper arm, elbow to tip; upper
+    arm CoM, forearm CoM; tip radius; flat foot force; elbow range); ``masses``: the 11 segments' and their total;
+    ``inputs``: joint positions (4), trunk roll, pitch, yaw, the sticks' roll, pitch, yaw (2 x 3),
+    heel forces (2), toe forces (2), feet loaded (2, 0 or 1); ``state``: the elbow angles (2), the
+    floor's z and whether it is known; ``r``: scratch (9). ``out``: CoM (3), ankles (2 x 3), tips
+    (2 x 3), stick axes (2 x 3), the floor's z, tips on the floor (2, 0 or 1)."""
+    tip_radius, flat = p[17], p[18]
+    _rows(inputs[4], inputs[5], 0.0, r)
+    # the trunk's CoM: the first point
+    px, py, pz = _rotated(r, p[0], 0.0, p[1], 0), _rotated(r, p[0], 0.0, p[1], 1), _rotated(r, p[0], 0.0, p[1], 2)
+    cx, cy, cz = 0.0 + masses[0] * px, 0.0 + masses[0] * py, 0.0 + masses[0] * pz
+    for i in range(2):
+        sign = 1.0 if i == 0 else -1.0
+        hip_q = inputs[2 * i]
+        shank_q = hip_q - inputs[2 * i + 1]
+        hx, hy, hz = _rotated(r, 0.0, sign * p[2], 0.0, 0), _rotated(r, 0.0, sign * p[2], 0.0, 1), _rotated(r, 0.0, sign * p[2], 0.0, 2)
+        tx, ty, tz = _rotated(r, sin(hip_q), 0.0, -cos(hip_q), 0), _rotated(r, sin(hip_q), 0.0, -cos(hip_q), 1), _rotated(r, sin(hip_q), 0.0, -cos(hip_q), 2)
+        kx, ky, kz = _rotated(r, sin(shank_q), 0.0, -cos(shank_q), 0), _rotated(r, sin(shank_q), 0.0, -cos(shank_q), 1), _rotated(r, sin(shank_q), 0.0, -cos(shank_q), 2)
+        nx, ny, nz = hx + p[6] * tx, hy + p[6] * ty, hz + p[6] * tz  # the knee
+        ax, ay, az = nx + p[7] * kx, ny + p[7] * ky, nz + p[7] * kz  # the ankle
+        out[3 + 3 * i], out[4 + 3 * i], out[5 + 3 * i] = ax, ay, az
+        # the thigh's, the shank's and the foot's CoM
+        mass = masses[1 + 3 * i]
+        cx, cy, cz = cx + mass * (hx + p[8] * tx), cy + mass * (hy + p[8] * ty), cz + mass * (hz + p[8] * tz)
+        mass = masses[2 + 3 * i]
+        cx, cy, cz = cx + mass * (nx + p[9] * kx), cy + mass * (ny + p[9] * ky), cz + mass * (nz + p[9] * kz)
+        mass = masses[3 + 3 * i]
+        cx, cy, cz = cx + mass * (ax + p[10]), cy + mass * (ay + 0.0), cz + mass * (az + p[11])
+    # the floor from the feet that are flat (heel and toe loaded); with none the last tick's
+    total, count = 0.0, 0
+    for i in range(2):
+        if inputs[17 + i] != 0.0 and inputs[13 + i] > flat and inputs[15 + i] > flat:
+            total += out[5 + 3 * i] - p[12]
+            count += 1
+    if count:
+        state[2], state[3] = total / count, 1.0
+    if state[3] != 0.0:
+        floor_z = state[2]
+    else:
+        floor_z = (out[8] if out[8] < out[5] else out[5]) - p[12]  # min(): the first of equals
+    out[21] = floor_z
+    for i in range(2):
+        sign = 1.0 if i == 0 else -1.0
+        sx, sy, sz = _rotated(r, p[3], sign * p[4], p[5], 0), _rotated(r, p[3], sign * p[4], p[5], 1), _rotated(r, p[3], sign * p[4], p[5], 2)
+        # the forearm's rotation relative to the trunk's heading; the stick's axis (toward the tip), the forearm's x
+        _rows(inputs[7 + 3 * i], inputs[8 + 3 * i], inputs[9 + 3 * i] - inputs[6], r)
+        ux, uy, uz = -r[2], -r[5], -r[8]
+        fx, fy, fz = r[0], r[3], r[6]
+        out[15 + 3 * i], out[16 + 3 * i], out[17 + 3 * i] = ux, uy, uz
+        # upper arm w = cos e u - sin e x_f; the tip at the floor: A cos e + B sin e = C
+        a_, b_ = p[13] * uz, -p[13] * fz
+        c_ = floor_z + tip_radius - sz - p[14] * uz
+        out[22 + i] = 1.0 if _elbow_angle(state, i, a_, b_, c_, p[19], p[20]) else 0.0
+        e = state[i]
+        ce, se = cos(e), sin(e)
+        wx, wy, wz = ce * ux - se * fx, ce * uy - se * fy, ce * uz - se * fz
+        ex, ey, ez = sx + p[13] * wx, sy + p[13] * wy, sz + p[13] * wz  # the elbow
+        out[9 + 3 * i], out[10 + 3 * i], out[11 + 3 * i] = ex + p[14] * ux, ey + p[14] * uy, ez + p[14] * uz - tip_radius
+        mass = masses[7 + 2 * i]
+        cx, cy, cz = cx + mass * (sx + p[15] * wx), cy + mass * (sy + p[15] * wy), cz + mass * (sz + p[15] * wz)
+        mass = masses[8 + 2 * i]
+        cx, cy, cz = cx + mass * (ex + p[16] * ux), cy + mass * (ey + p[16] * uy), cz + mass * (ez + p[16] * uz)
+        _rows(inputs[4], inputs[5], 0.0, r)  # the trunk's again for the other shoulder
+    out[0], out[1], out[2] = cx / masses[11], cy / masses[11], cz / masses[11]
