@@ -34,6 +34,7 @@ MODULES = (
     "controller.balance",
     "controller.estimator",
     "protocol.codec_kernel",
+    "sim.balance",
     "protocol.codec",
     "protocol.e2e",
 )

@@ -18,10 +18,11 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import cython
 import numpy as np
 from scipy.optimize import nnls as _scipy_nnls
 
-from sim.linalg import cross, cross3, norm3
+from sim.linalg import cross3, norm3
 
 
 def nnls(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -120,26 +121,24 @@ def distribute(
         edges = edges.copy()
         for i in struts:
             edges[i] = strut_edges(contacts[i].axis, contacts[i].spread)
-    flat = edges.reshape(-1, 3)
-    r = np.array([c.point for c in contacts]) - com  # (k, 3)
+    flat = np.array(edges.reshape(-1, 3))  # (4k, 3), writable (the cached pyramids are not): a typed buffer
+    r = np.ascontiguousarray(np.array([c.point for c in contacts]) - com, dtype=np.float64)  # (k, 3)
     n = 4 * k
-    lhs = np.zeros((6 + n, n))
-    lhs[:3] = flat.T
-    lhs[3:6] = cross(r.repeat(4, axis=0), flat).T
-    lhs[:6] *= weights[:, None]
-    lhs.flat[6 * n :: n + 1] = [w for c in contacts for w in [math.sqrt(c.cost)] * 4]  # the diagonal of rows 6..
     # the minimum loads: min_normal_n along each contact's base direction (vertical, or its strut's
-    # axis scaled to a unit vertical component); what they give: force sum f0, moment sum r x f0
-    base_dir = np.zeros((k, 3))
-    base_dir[:, 2] = 1.0
-    for i in struts:
-        base_dir[i] = contacts[i].axis / contacts[i].axis[2]
-    f0 = np.array([min_normal_n if c.min_n is None else c.min_n for c in contacts])[:, None] * base_dir
-    base = np.concatenate([f0, cross(r, f0)], axis=1).sum(axis=0)
-    rhs = np.zeros(6 + n)
-    rhs[:6] = weights * (wrench - base)
+    # axis scaled to a unit vertical component)
+    f0 = np.zeros((k, 3))
+    for i, c in enumerate(contacts):
+        load = min_normal_n if c.min_n is None else c.min_n
+        if c.axis is None:
+            f0[i, 2] = load * 1.0
+        else:
+            f0[i] = load * (c.axis / c.axis[2])
+    lhs, rhs = np.zeros((6 + n, n)), np.zeros(6 + n)
+    _system(flat, r, np.ascontiguousarray(weights, dtype=np.float64), np.array([math.sqrt(c.cost) for c in contacts]),
+            f0, np.ascontiguousarray(wrench, dtype=np.float64), lhs, rhs)
     lam = nnls(lhs, rhs)
-    forces = (lam.reshape(k, 4, 1) * edges).sum(axis=1) + f0
+    forces = np.empty((k, 3))
+    _forces(lam, flat, f0, forces)
     miss = lhs[:6] @ lam - rhs[:6]
     residual = math.sqrt(miss.dot(miss))  # np.linalg.norm(miss), without its argument handling
     return forces, residual
@@ -186,3 +185,54 @@ def desired_wrench(
         g.tilt_nm_rad * (trunk_target_rp[1] - trunk_rpy[1]) - g.tilt_nms_rad * trunk_rate[1],
         -g.yaw_nms_rad * trunk_rate[2],
     ])
+
+
+@cython.cfunc
+@cython.boundscheck(False)
+@cython.wraparound(False)
+@cython.locals(k=cython.Py_ssize_t, c=cython.Py_ssize_t, e=cython.Py_ssize_t, j=cython.Py_ssize_t, r0=cython.double, r1=cython.double, r2=cython.double, f0x=cython.double,
+               f0y=cython.double, f0z=cython.double, fx=cython.double, fy=cython.double, fz=cython.double,
+               b0=cython.double, b1=cython.double, b2=cython.double, b3=cython.double, b4=cython.double,
+               b5=cython.double)
+def _system(flat: cython.double[:, ::1], r: cython.double[:, ::1], weights: cython.double[::1], root_costs: cython.double[::1],
+            f0: cython.double[:, ::1], wrench: cython.double[::1], lhs: cython.double[:, ::1], rhs: cython.double[::1]) -> cython.void:
+    """:func:`distribute`'s least-squares system over scalars: the weighted wrench rows of every
+    edge (its force, its moment about the CoM r x f), the edges' regularisation, and the wrench less
+    what the minimum loads give; numpy's arithmetic (its cross product's products and differences,
+    its sums from the first row on)."""
+    k = r.shape[0]
+    for c in range(k):
+        r0, r1, r2 = r[c, 0], r[c, 1], r[c, 2]
+        for e in range(4):
+            j = 4 * c + e
+            fx, fy, fz = flat[j, 0], flat[j, 1], flat[j, 2]
+            lhs[0, j], lhs[1, j], lhs[2, j] = fx * weights[0], fy * weights[1], fz * weights[2]
+            lhs[3, j] = (r1 * fz - r2 * fy) * weights[3]
+            lhs[4, j] = (r2 * fx - r0 * fz) * weights[4]
+            lhs[5, j] = (r0 * fy - r1 * fx) * weights[5]
+            lhs[6 + j, j] = root_costs[c]
+        f0x, f0y, f0z = f0[c, 0], f0[c, 1], f0[c, 2]
+        if c == 0:
+            b0, b1, b2 = f0x, f0y, f0z
+            b3, b4, b5 = r1 * f0z - r2 * f0y, r2 * f0x - r0 * f0z, r0 * f0y - r1 * f0x
+        else:
+            b0, b1, b2 = b0 + f0x, b1 + f0y, b2 + f0z
+            b3, b4, b5 = b3 + (r1 * f0z - r2 * f0y), b4 + (r2 * f0x - r0 * f0z), b5 + (r0 * f0y - r1 * f0x)
+    rhs[0], rhs[1], rhs[2] = weights[0] * (wrench[0] - b0), weights[1] * (wrench[1] - b1), weights[2] * (wrench[2] - b2)
+    rhs[3], rhs[4], rhs[5] = weights[3] * (wrench[3] - b3), weights[4] * (wrench[4] - b4), weights[5] * (wrench[5] - b5)
+
+
+@cython.cfunc
+@cython.boundscheck(False)
+@cython.wraparound(False)
+@cython.locals(k=cython.Py_ssize_t, c=cython.Py_ssize_t, d=cython.Py_ssize_t, s=cython.double)
+def _forces(lam: cython.double[::1], flat: cython.double[:, ::1], f0: cython.double[:, ::1], forces: cython.double[:, ::1]) -> cython.void:
+    """Each contact's force: its edges' loads times the edges, summed in order, plus its minimum load."""
+    k = f0.shape[0]
+    for c in range(k):
+        for d in range(3):
+            s = lam[4 * c] * flat[4 * c, d]
+            s += lam[4 * c + 1] * flat[4 * c + 1, d]
+            s += lam[4 * c + 2] * flat[4 * c + 2, d]
+            s += lam[4 * c + 3] * flat[4 * c + 3, d]
+            forces[c, d] = s + f0[c, d]
