@@ -115,6 +115,7 @@ def _nnls(g: cython.double[:, ::1], c: cython.double[::1], max_iter: cython.int,
     done: cython.bint
     for i in range(n):
         w[i] = c[i]  # x = 0
+        passive[i] = 0
     for it in range(max_iter):
         best, s = -1, 1e-10
         for j in range(n):  # the most positive gradient outside the passive set (the first of equals)
@@ -179,6 +180,16 @@ def _nnls(g: cython.double[:, ::1], c: cython.double[::1], max_iter: cython.int,
             w[i] = s
 
 
+class _Buffers:
+    """The distribution's arrays for ``k`` contacts, made once (a tick allocates none)."""
+
+    def __init__(self, k: int) -> None:
+        n = 2 * k
+        self.contacts, self.wrench, self.forces = np.zeros((k, 3)), np.zeros(4), np.zeros((k, 3))
+        self.gram, self.rows, self.work, self.low = np.zeros((n, n)), np.zeros((4, n)), np.zeros((6, n)), np.zeros((n, n))
+        self.flags = np.zeros((2, n), dtype=np.intc)
+
+
 class LegLoads:
     """Segment masses and the legs' geometry of the estimator's body model, and the foot plate."""
 
@@ -189,6 +200,9 @@ class LegLoads:
         #: the figures the feed-forward's arithmetic reads, in the order of :data:`_SHAPE`
         self.shape = np.array([leg.thigh_m, leg.shank_m, b.thigh_kg, b.thigh_com_m, b.shank_kg, b.shank_com_m, b.foot_kg,
                                b.foot_com_xz_m[0], foot.half_width_m])
+        self.jacobian = np.zeros((2, 3, 2))
+        #: the distribution's work arrays for one and for two stance feet (two contacts across each sole)
+        self.buffers = {feet: _Buffers(2 * feet) for feet in (1, 2)}
 
     def gravity_and_jacobian(self, q: np.ndarray, roll: float, pitch: float, stance: tuple[bool, bool]) -> tuple[np.ndarray, np.ndarray]:
         """The torques (4,) that hold each leg's segments against gravity (a stance foot's weight
@@ -202,7 +216,7 @@ class LegLoads:
 @cython.cfunc
 @cython.boundscheck(False)
 @cython.wraparound(False)
-def _gravity_and_jacobian(shape: cython.double[::1], q: cython.double[::1], roll: cython.double, pitch: cython.double,
+def _gravity_and_jacobian(shape: cython.double[::1], q: cython.const[cython.double][::1], roll: cython.double, pitch: cython.double,
                           left: cython.bint, right: cython.bint, torques: cython.double[::1],
                           jac: cython.double[:, :, ::1]) -> cython.void:
     """:meth:`LegLoads.gravity_and_jacobian` over scalars."""
@@ -259,17 +273,6 @@ def _gravity_and_jacobian(shape: cython.double[::1], q: cython.double[::1], roll
             dz1 += foot_kg * (jac[i, 2, 1] - foot_x)
         torques[2 * i] = GRAVITY * dz0
         torques[2 * i + 1] = GRAVITY * dz1
-
-
-def desired_wrench(gains: BalanceGains, mass_kg: float, goals: Goals, roll: float, pitch: float, rate_xy: tuple[float, float]) -> np.ndarray:
-    """(fx, fz, mx, my) at the CoM toward the goals."""
-    g = gains
-    return np.array([
-        g.com_n_m * goals.com_offset_m - g.com_ns_m * goals.com_velocity_m_s,
-        mass_kg * GRAVITY + g.height_n_m * (goals.hip_height_m - goals.hip_height_now_m) - g.height_ns_m * goals.hip_velocity_m_s,
-        g.tilt_nm_rad * (goals.roll_rad - roll) - g.tilt_nms_rad * rate_xy[0],
-        g.tilt_nm_rad * (goals.pitch_rad - pitch) - g.tilt_nms_rad * rate_xy[1],
-    ])
 
 
 def distribute(wrench: np.ndarray, contacts: np.ndarray, friction: float, min_n: float) -> np.ndarray:
@@ -351,43 +354,82 @@ def _distribute(wrench: cython.double[::1], contacts: cython.double[:, ::1], fri
         forces[i, 2] = min_n + lam[2 * i] + lam[2 * i + 1]
 
 
-def ankle_spring_pitch(q: np.ndarray, pitch: float, leg: int, gains: BalanceGains) -> float:
-    """The pitch moment (about +y, nose down positive) a planted foot's ankle spring puts on the
-    body: the shank's forward tilt from vertical is the ankle's dorsiflexion (the foot flat)."""
-    shank = float(q[2 * leg] - q[2 * leg + 1]) - pitch  # the shank's angle in the world, forward positive at the top
-    dorsiflexion = -shank
-    return -gains.ankle_stiffness_nm_rad * (dorsiflexion - gains.ankle_rest_rad)
-
-
 def feed_forward(loads: LegLoads, gains: BalanceGains, est: Estimate, m: Measurements, stance: tuple[bool, bool],
                  goals: Goals) -> np.ndarray:
     """The four joints' torque feed-forward (left hip, left knee, right hip, right knee)."""
-    roll, pitch, _ = m.trunk_rpy_rad.tolist()
-    q = np.ascontiguousarray(m.joint_position_rad, dtype=np.float64)
-    torques, jac = np.zeros(4), np.zeros((2, 3, 2))
-    _gravity_and_jacobian(loads.shape, q, roll, pitch, stance[0], stance[1], torques, jac)
-    feet = [i for i in LEGS if stance[i]]
-    if not feet:
-        return torques
-    b = loads.body
-    mass = loads.total_kg - len(feet) * b.foot_kg
-    rate = m.trunk_rate_rad_s.tolist()
-    wrench = desired_wrench(gains, mass, goals, roll, pitch, (rate[0], rate[1]))
-    com = est.com.tolist()
-    for i in LEGS:  # each stick's load along its axis: its upward part and that part's moment
-        axis_down = -float(est.stick_axes[i][2])
-        up = float(m.stick_force_n[i]) * (axis_down if axis_down > 0.0 else 0.0)
-        tip = est.tips[i].tolist()
-        wrench[1] -= up
-        wrench[2] -= (tip[1] - com[1]) * up
-        wrench[3] -= -(tip[0] - com[0]) * up
-    for i in feet:
-        wrench[3] -= ankle_spring_pitch(q, pitch, i, gains)
-    half = loads.foot.half_width_m
-    contacts = np.array([est.ankles[i] + (0.0, s * half, 0.0) - com for i in feet for s in (1.0, -1.0)])
-    forces = distribute(wrench, contacts, gains.friction, gains.min_foot_n)
-    for n, i in enumerate(feet):
-        f = forces[2 * n] + forces[2 * n + 1]
-        for j in range(2):  # less the Jacobian's transpose times the foot's force
-            torques[2 * i + j] -= jac[i, 0, j] * f[0] + jac[i, 1, j] * f[1] + jac[i, 2, j] * f[2]
+    torques = np.zeros(4)
+    feet = int(stance[0]) + int(stance[1])
+    g, o = gains, goals
+    _feed_forward(loads.shape, loads.total_kg, loads.jacobian, loads.buffers.get(feet), stance[0], stance[1],
+                  g.com_n_m, g.com_ns_m, g.height_n_m, g.height_ns_m, g.tilt_nm_rad, g.tilt_nms_rad, g.friction, g.min_foot_n,
+                  g.ankle_stiffness_nm_rad, g.ankle_rest_rad, o.com_offset_m, o.com_velocity_m_s, o.hip_height_m,
+                  o.hip_height_now_m, o.hip_velocity_m_s, o.roll_rad, o.pitch_rad, est.com, est.ankles, est.tips,
+                  est.stick_axes, m.joint_position_rad, m.trunk_rpy_rad, m.trunk_rate_rad_s, m.stick_force_n, torques)
     return torques
+
+
+@cython.cfunc
+@cython.boundscheck(False)
+@cython.wraparound(False)
+@cython.locals(i=cython.Py_ssize_t, j=cython.Py_ssize_t, c=cython.Py_ssize_t, k=cython.Py_ssize_t, roll=cython.double,
+               pitch=cython.double, mass=cython.double, fx=cython.double, fz=cython.double, mx=cython.double,
+               my=cython.double, axis_down=cython.double, up=cython.double, shank=cython.double, half=cython.double,
+               side=cython.double, f0=cython.double, f1=cython.double, f2=cython.double,
+               contacts=cython.double[:, ::1], wrench=cython.double[::1], forces=cython.double[:, ::1])
+def _feed_forward(shape: cython.double[::1], total_kg: cython.double, jac: cython.double[:, :, ::1], buffers,
+                  left: cython.bint, right: cython.bint, com_n_m: cython.double, com_ns_m: cython.double,
+                  height_n_m: cython.double, height_ns_m: cython.double, tilt_nm_rad: cython.double,
+                  tilt_nms_rad: cython.double, friction: cython.double, min_foot_n: cython.double,
+                  ankle_stiffness: cython.double, ankle_rest: cython.double, com_offset: cython.double,
+                  com_velocity: cython.double, hip_height: cython.double, hip_height_now: cython.double,
+                  hip_velocity: cython.double, goal_roll: cython.double, goal_pitch: cython.double,
+                  com: cython.const[cython.double][::1], ankles: cython.const[cython.double][:, ::1],
+                  tips: cython.const[cython.double][:, ::1], stick_axes: cython.const[cython.double][:, ::1],
+                  q: cython.const[cython.double][::1], rpy: cython.const[cython.double][::1],
+                  rate: cython.const[cython.double][::1], stick_force: cython.const[cython.double][::1],
+                  torques: cython.double[::1]) -> cython.void:
+    """:func:`feed_forward` over scalars: the gravity torques; with a stance foot, the wrench at the
+    CoM toward the goals (a spring-damper fore-aft, upward the weight and the stance height, roll
+    and pitch toward the goal attitude), less the sticks' measured upward loads and their moments
+    and the planted ankles' spring moments, distributed over two contacts across each stance sole;
+    less the Jacobians' transposes times each foot's force."""
+    roll, pitch = rpy[0], rpy[1]
+    _gravity_and_jacobian(shape, q, roll, pitch, left, right, torques, jac)
+    if not (left or right):
+        return
+    contacts, wrench, forces = buffers.contacts, buffers.wrench, buffers.forces
+    mass = total_kg - (int(left) + int(right)) * shape[6]
+    fx = com_n_m * com_offset - com_ns_m * com_velocity
+    fz = mass * GRAVITY + height_n_m * (hip_height - hip_height_now) - height_ns_m * hip_velocity
+    mx = tilt_nm_rad * (goal_roll - roll) - tilt_nms_rad * rate[0]
+    my = tilt_nm_rad * (goal_pitch - pitch) - tilt_nms_rad * rate[1]
+    for i in range(2):  # each stick's load along its axis: its upward part and that part's moment
+        axis_down = -stick_axes[i, 2]
+        up = stick_force[i] * (axis_down if axis_down > 0.0 else 0.0)
+        fz -= up
+        mx -= (tips[i, 1] - com[1]) * up
+        my -= -(tips[i, 0] - com[0]) * up
+    half, c = shape[8], 0
+    for i in range(2):
+        if not (left if i == 0 else right):
+            continue
+        # the pitch moment (about +y, nose down positive) of a planted foot's ankle spring: the
+        # shank's forward tilt from vertical is the ankle's dorsiflexion (the foot flat)
+        shank = (q[2 * i] - q[2 * i + 1]) - pitch
+        my -= -ankle_stiffness * (-shank - ankle_rest)
+        for side in (1.0, -1.0):
+            contacts[c, 0] = ankles[i, 0] + 0.0 - com[0]
+            contacts[c, 1] = ankles[i, 1] + side * half - com[1]
+            contacts[c, 2] = ankles[i, 2] + 0.0 - com[2]
+            c += 1
+    wrench[0], wrench[1], wrench[2], wrench[3] = fx, fz, mx, my
+    _distribute(wrench, contacts, friction, min_foot_n, buffers.gram, buffers.rows, buffers.work, buffers.low,
+                buffers.flags, forces)
+    k = 0
+    for i in range(2):
+        if not (left if i == 0 else right):
+            continue
+        f0, f1, f2 = forces[k, 0] + forces[k + 1, 0], forces[k, 1] + forces[k + 1, 1], forces[k, 2] + forces[k + 1, 2]
+        for j in range(2):  # less the Jacobian's transpose times the foot's force
+            torques[2 * i + j] -= jac[i, 0, j] * f0 + jac[i, 1, j] * f1 + jac[i, 2, j] * f2
+        k += 2
