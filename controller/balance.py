@@ -1,4 +1,5 @@
-"""The stance legs' torque feed-forward: the exoskeleton carries the body (pure numpy).
+"""The stance legs' torque feed-forward: the exoskeleton carries the body (pure: no I/O; compiled:
+protocol/compiled.py).
 
 With passive spring ankles the legs and trunk rock about the ankles in a mode that the joints'
 position targets cannot hold (every hip and knee angle stays as it is while the body turns over

@@ -1,6 +1,7 @@
-"""State estimation from the sensors alone (pure numpy): where the feet, the stick tips and the
-centre of mass are, which of them carry load, and so X_CoM/X_SP, the CoM's fore-aft place in the
-support polygon that the step-length compensation (paper equation (8)) needs.
+"""State estimation from the sensors alone (pure: no I/O; its chain compiled, protocol/compiled.py):
+where the feet, the stick tips and the centre of mass are, which of them carry load, and so
+X_CoM/X_SP, the CoM's fore-aft place in the support polygon that the step-length compensation
+(paper equation (8)) needs.
 
 Everything is expressed in the *heading frame*: origin midway between the hip joints, z up, x the
 trunk's heading (its yaw removed), so the ratio needs no global position. Per tick:

@@ -1,4 +1,5 @@
-"""Quasi-static whole-body balance by contact-force distribution (pure numpy).
+"""Quasi-static whole-body balance by contact-force distribution (pure: no I/O; compiled:
+protocol/compiled.py).
 
 A desired wrench at the centre of mass is distributed over the loaded contacts: feet act at their
 ankle pins (a passive pitch ankle transmits force but no moment about its axis; the caller gives
