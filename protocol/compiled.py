@@ -32,6 +32,7 @@ from pathlib import Path
 #: the compiled modules, by the profile of a walking tick (docs/PERFORMANCE.md)
 MODULES = (
     "controller.balance",
+    "controller.distribution",
     "controller.estimator",
     "protocol.codec_kernel",
     "sim.balance",

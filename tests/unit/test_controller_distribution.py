@@ -1,10 +1,10 @@
-"""The stance legs' torque feed-forward (controller/balance.py): its solver and its distribution."""
+"""The distribution of the stance legs' wrench over the soles (controller/distribution.py): its solver and its distribution."""
 
 import numpy as np
 import pytest
 from scipy.optimize import nnls as reference_nnls
 
-from controller.balance import distribute, nnls
+from controller.distribution import distribute, nnls
 
 
 @pytest.mark.parametrize("seed", range(40))
