@@ -62,6 +62,8 @@ class Layout:
     table: cython.double[::1]
 
     def __init__(self, dlc, seed, record, choices, table) -> None:
+        if len(table) != len(choices) * COLUMNS or dlc < 2:  # the kernel reads both unchecked
+            raise ValueError(f"a layout of {len(choices)} signals needs {len(choices) * COLUMNS} numbers and a DLC of 2 or more")
         self.dlc, self.seed, self.n, self.record, self.choices, self.table = dlc, seed, len(choices), record, choices, table
 
 
@@ -135,6 +137,8 @@ def encode(layout: Layout, values, counter: cython.int):
     """The payload of ``values`` (a sequence in signal order) with the alive ``counter`` (bits 8..11)
     and the CRC (byte 0), or the index of the first value outside its range or enumeration."""
     crc, dlc, sig, vals = _TABLE, layout.dlc, layout.table, tuple(values)
+    if len(vals) != layout.n:  # the loop reads vals unchecked
+        raise ValueError(f"expected {layout.n} values, got {len(vals)}")
     word, one = counter & 0xF, 1
     for k in range(layout.n):
         row = k * COLUMNS

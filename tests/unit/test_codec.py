@@ -162,3 +162,21 @@ def test_encode_accepts_enum_members_and_sequences():
     with pytest.raises(EncodeError, match="expected 5 values, got 2"):
         CODEC.encode(spec, (1, 0.0), 0)
 
+
+
+def test_the_kernel_refuses_what_it_would_read_out_of_bounds():
+    """protocol/codec_kernel.py's loops read unchecked (compiled): a value sequence of another
+    length, a table of another size or a DLC below 2 is refused before they run."""
+    from array import array
+
+    from protocol import codec_kernel as kernel
+
+    spec = CODEC.spec("SYNC")
+    layout = kernel.layout_of(spec)
+    with pytest.raises(ValueError, match="expected 1 values, got 2"):
+        kernel.encode(layout, (1, 2), 0)
+    with pytest.raises(ValueError, match="needs 11 numbers"):
+        kernel.Layout(spec.dlc, spec.crc_seed, spec.record, (None,), array("d", [0.0] * 5))
+    with pytest.raises(ValueError, match="DLC of 2"):
+        kernel.Layout(1, spec.crc_seed, spec.record, (None,), array("d", [0.0] * 11))  # a row has 11 numbers
+    assert kernel.decode(layout, b"\x00") == kernel.WRONG_LENGTH  # too short to hold a CRC and a counter
