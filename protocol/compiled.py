@@ -119,14 +119,14 @@ def install() -> None:
 
 
 def report() -> dict[str, str]:
-    """Each compiled module, imported: ``compiled`` or why it runs interpreted."""
+    """Each compiled module: ``compiled`` or why it runs interpreted, as an import would load it
+    (found, not imported: a module of an extra that is not installed is reported too)."""
     install()
     out = {}
     for name in MODULES:
-        module = importlib.import_module(name)
-        compiled = (module.__file__ or "").endswith(tuple(importlib.machinery.EXTENSION_SUFFIXES))
+        spec = importlib.util.find_spec(name)
+        compiled = spec is not None and (spec.origin or "").endswith(tuple(importlib.machinery.EXTENSION_SUFFIXES))
         out[name] = "compiled" if compiled else _CHOOSER.why.get(name, "interpreted")
     return out
-
 
 install()
