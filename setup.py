@@ -1,5 +1,5 @@
 """Build: the package as pyproject.toml says, with the per-tick numerics of protocol/compiled.py's
-MODULES compiled by Cython (pure-Python mode: the .py beside its .pxd) where a C compiler is there.
+MODULES compiled by Cython (pure-Python mode: the annotated .py itself) where a C compiler is there.
 
 Without Cython or a compiler the package installs and runs interpreted, and the build says so
 once. Each extension gets a ``<module>.sha256`` beside it, the digest of the source it was built
@@ -55,5 +55,6 @@ class BuildExt(build_ext):
             target = Path(self.get_ext_fullpath(ext.name))  # in place or in the build folder, as installed
             source = HERE / (ext.name.replace(".", "/") + ".py")
             (target.parent / (ext.name.rpartition(".")[2] + compiled.SIDECAR)).write_text(compiled.source_digest(source) + "\n")
+
 
 setup(ext_modules=extensions(), cmdclass={"build_ext": BuildExt})

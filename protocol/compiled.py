@@ -1,7 +1,8 @@
 """The per-tick numerics compiled with Cython, and the choice at import between them and their source.
 
-Each module of :data:`MODULES` is plain Python (its C types, where it has them, are in a ``.pxd``
-beside it: Cython's pure-Python mode), so the same source runs interpreted or compiled. The build
+Each module of :data:`MODULES` is plain Python whose C types are annotations (``import cython``:
+Cython's pure-Python mode; a ``.pxd`` beside it would count as part of its source), so the same
+source runs interpreted or compiled. The build
 (``setup.py``) compiles them when Cython and a C compiler are there and writes, beside each
 extension, ``<module>.sha256``: the SHA-256 of the source it was compiled from. At import a module
 is loaded compiled unless
@@ -16,8 +17,9 @@ is loaded compiled unless
 An extension beside a module of the project's packages that is not in :data:`MODULES` (one
 compiled once, since taken off the list) is never loaded: its source runs.
 
-:func:`install` puts the chooser on ``sys.meta_path``; every package that holds one of the modules
-calls it in its ``__init__``. :func:`report` says how each module was loaded (``aider-exo --version``).
+:func:`install` puts the chooser on ``sys.meta_path`` (this module's import does; every package
+that holds one of the modules imports it in its ``__init__``). :func:`report` says how each module
+is loaded (``aider-exo --version``).
 """
 
 from __future__ import annotations
