@@ -8,6 +8,7 @@ from: at import an extension whose source has changed since is not used (protoco
 from __future__ import annotations
 
 import importlib.util
+import os
 import sys
 from pathlib import Path
 
@@ -38,12 +39,17 @@ def extensions() -> list[Extension]:
         _warn("Cython is not installed")
         return []
     modules = [Extension(name, [name.replace(".", "/") + ".py"], extra_compile_args=CFLAGS) for name in compiled.MODULES]
-    return cythonize(modules, language_level=3, build_dir="build/cython", quiet=True)
+    return cythonize(modules, language_level=3, build_dir="build/cython", quiet=True, nthreads=os.cpu_count() or 1)
 
 
 class BuildExt(build_ext):
     """build_ext that writes each extension's source digest beside it, and builds nothing (with a
     warning) where there is no compiler."""
+
+    def finalize_options(self) -> None:
+        super().finalize_options()
+        if self.parallel is None:
+            self.parallel = os.cpu_count() or 1  # the extensions compile side by side
 
     def run(self) -> None:
         try:
