@@ -80,20 +80,13 @@ class LegLoads:
         self.body, self.leg, self.foot = body, leg, foot
         b = body
         self.total_kg = b.trunk_kg + 2 * (b.thigh_kg + b.shank_kg + b.foot_kg + b.upper_arm_kg + b.forearm_kg)
-        #: the figures the feed-forward's arithmetic reads, in the order of :data:`_SHAPE`
+        #: the figures the feed-forward's arithmetic reads (thigh, shank, thigh kg, thigh CoM, shank kg,
+        #: shank CoM, foot kg, foot CoM x, the sole's half width), in the order its loops index them
         self.shape = np.array([leg.thigh_m, leg.shank_m, b.thigh_kg, b.thigh_com_m, b.shank_kg, b.shank_com_m, b.foot_kg,
                                b.foot_com_xz_m[0], foot.half_width_m])
         self.jacobian = np.zeros((2, 3, 2))
         #: the distribution's work arrays for one and for two stance feet (two contacts across each sole)
         self.buffers = {feet: Buffers(2 * feet) for feet in (1, 2)}
-
-    def gravity_and_jacobian(self, q: np.ndarray, roll: float, pitch: float, stance: tuple[bool, bool]) -> tuple[np.ndarray, np.ndarray]:
-        """The torques (4,) that hold each leg's segments against gravity (a stance foot's weight
-        rests on the floor), and per leg the (3, 2) Jacobian of its ankle w.r.t. (hip, knee) in
-        the heading frame: (2, 3, 2)."""
-        torques, jac = np.zeros(4), np.zeros((2, 3, 2))
-        _gravity_and_jacobian(self.shape, np.ascontiguousarray(q, dtype=np.float64), roll, pitch, stance[0], stance[1], torques, jac)
-        return torques, jac
 
 
 @cython.cfunc
@@ -102,7 +95,9 @@ class LegLoads:
 def _gravity_and_jacobian(shape: cython.double[::1], q: cython.const[cython.double][::1], roll: cython.double, pitch: cython.double,
                           left: cython.bint, right: cython.bint, torques: cython.double[::1],
                           jac: cython.double[:, :, ::1]) -> cython.void:
-    """:meth:`LegLoads.gravity_and_jacobian` over scalars."""
+    """The torques (4,) that hold each leg's segments against gravity (a stance foot's weight rests
+    on the floor), and per leg the (3, 2) Jacobian of its ankle w.r.t. (hip, knee) in the heading
+    frame, into ``jac`` (2, 3, 2); over scalars."""
     thigh_m: cython.double = shape[0]
     shank_m: cython.double = shape[1]
     thigh_kg: cython.double = shape[2]
